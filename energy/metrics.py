@@ -1,0 +1,167 @@
+"""Every metric of a run: gap keeping, safety, comfort, distance, fuel or energy.
+
+:func:`evaluate_run` turns a run log (see :mod:`energy.runlog`) and a vehicle into
+one flat dict. Keys carry their unit (``_m``, ``_s``, ``_mps2``, ``_g_per_mi``...).
+Time averages weight each row by the time until the next row (the last row by the
+previous step), so a log with a 0.02 s or 0.1 s period, or an uneven one, is
+averaged over time; for an even period this is the plain mean over rows.
+
+Fuel, emissions and energy are evaluated on the host speed trace (v_host over t),
+so that they agree with the distance; acceleration and jerk statistics use the
+logged ``accel`` column.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from energy import cmem, ev, units
+from energy.runlog import RunLog, read_run_log
+
+DESIRED_GAP_M = 55.0  # [m] the paper's desired gap; gap RMSE is taken against it
+TIME_GAP_S = 1.5  # [s] default t_gap of the ACC's reference d_ref = max(v t_gap, d_safe)
+D_SAFE_M = 5.0  # [m] default d_safe of the same reference
+TTC_THRESHOLD_S = 4.0  # [s] a common critical time-to-collision
+HEADWAY_MIN_SPEED_MPS = 0.5  # [m/s] below this, time headway is not defined (standstill)
+HEADWAY_BINS_S = (0.0, 1.0, 2.0, 3.0, 4.0, np.inf)  # [s] edges of the headway distribution
+
+VEHICLE_NAMES = ("corolla", "average", "leaf")
+"""Vehicles :func:`evaluate_run` accepts by name."""
+
+Metrics = dict[str, float | int | str | None]
+
+
+def _weights(t: np.ndarray) -> np.ndarray:
+    dt = np.diff(t)
+    return np.append(dt, dt[-1])
+
+
+def _wmean(x: np.ndarray, w: np.ndarray) -> float:
+    return float(np.sum(x * w) / np.sum(w))
+
+
+def _rms(x: np.ndarray, w: np.ndarray) -> float:
+    return float(np.sqrt(_wmean(x**2, w)))
+
+
+def evaluate_run(
+    log: RunLog | str | Path,
+    vehicle: str | cmem.CmemVehicle | ev.LeafVtCpem,
+    *,
+    desired_gap_m: float = DESIRED_GAP_M,
+    time_gap_s: float = TIME_GAP_S,
+    d_safe_m: float = D_SAFE_M,
+    ttc_threshold_s: float = TTC_THRESHOLD_S,
+) -> Metrics:
+    """Every metric of one run.
+
+    Args:
+        log: a validated :class:`RunLog`, or the path of a run log CSV.
+        vehicle: ``"corolla"``, ``"average"`` (CMEM, ICE) or ``"leaf"`` (EV), or a
+            parameter set.
+        desired_gap_m: fixed target of ``gap_rmse_55m_m`` [m] (the paper's 55 m).
+        time_gap_s: t_gap of the time-gap reference d_ref = max(v_host t_gap, d_safe) [s].
+        d_safe_m: d_safe of that reference [m].
+        ttc_threshold_s: TTC below which time counts as critical [s].
+
+    Returns:
+        A flat dict; values are floats, ints, strings or None (undefined, e.g. no
+        closing-in for TTC). ICE vehicles add fuel_g_per_mi, co2/co/hc/nox_g_per_mi and
+        mpg; the Leaf adds energy_kj_per_mi (eq. 6, regeneration negative),
+        energy_wh_per_mi, and from VT-CPEM energy_vtcpem_kj_per_mi and
+        regen_vtcpem_kj_per_mi (energy returned by regeneration, >= 0).
+
+    Raises:
+        RunLogError: the log file is invalid (see :func:`read_run_log`).
+        KeyError: unknown vehicle name.
+    """
+    if not isinstance(log, RunLog):
+        log = read_run_log(log)
+    t, v, gap = log.t, log.v_host, log.gap
+    w = _weights(t)
+    distance_m = log.distance_m
+    out: Metrics = {
+        "rows": int(t.size),
+        "duration_s": float(t[-1] - t[0]),
+        "control_period_s": float(np.median(np.diff(t))),
+        "distance_m": distance_m,
+        "distance_mi": units.m_to_mi(distance_m),
+        "mean_speed_mps": distance_m / float(t[-1] - t[0]),
+        "collisions": int(np.sum(np.diff(np.concatenate([[0.0], log.collision])) > 0)),
+    }
+
+    d_ref = np.maximum(v * time_gap_s, d_safe_m)
+    out |= {
+        "gap_mean_m": _wmean(gap, w),
+        "gap_rmse_55m_m": _rms(gap - desired_gap_m, w),
+        "gap_rmse_time_gap_m": _rms(gap - d_ref, w),
+        "desired_gap_m": desired_gap_m,
+        "time_gap_s": time_gap_s,
+        "d_safe_m": d_safe_m,
+    }
+
+    closing = v - log.v_lead  # [m/s] > 0 when the host closes in
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ttc = np.where(closing > 0.0, np.maximum(gap, 0.0) / closing, np.inf)
+    out["ttc_min_s"] = float(ttc.min()) if np.isfinite(ttc).any() else None
+    out["ttc_under_threshold_share"] = _wmean((ttc < ttc_threshold_s).astype(float), w)
+    out["ttc_threshold_s"] = ttc_threshold_s
+
+    moving = v > HEADWAY_MIN_SPEED_MPS
+    if moving.any():
+        hw, hww = gap[moving] / v[moving], w[moving]
+        out["headway_mean_s"] = _wmean(hw, hww)
+        order = np.argsort(hw)
+        cdf = np.cumsum(hww[order]) / np.sum(hww)
+        for q in (5, 50, 95):
+            out[f"headway_p{q:02d}_s"] = float(hw[order][np.searchsorted(cdf, q / 100.0)])
+        for lo, hi in zip(HEADWAY_BINS_S[:-1], HEADWAY_BINS_S[1:], strict=True):
+            key = (
+                f"headway_share_{lo:g}_{hi:g}s"
+                if np.isfinite(hi)
+                else f"headway_share_over_{lo:g}s"
+            )
+            out[key] = float(np.sum(hww[(hw >= lo) & (hw < hi)]) / np.sum(hww))
+    else:
+        out["headway_mean_s"] = None
+
+    jerk = np.diff(log.accel) / np.diff(t)  # [m/s^3]
+    out |= {
+        "accel_rms_mps2": _rms(log.accel, w),
+        "jerk_rms_mps3": _rms(jerk, np.diff(t)),
+        "jerk_max_mps3": float(np.max(np.abs(jerk))),
+        "force_rms": _rms(log.force, w),
+    }
+    out |= _energy(t, v, vehicle)
+    return out
+
+
+def _energy(
+    t: np.ndarray, v: np.ndarray, vehicle: str | cmem.CmemVehicle | ev.LeafVtCpem
+) -> Metrics:
+    if isinstance(vehicle, str):
+        if vehicle not in VEHICLE_NAMES:
+            raise KeyError(f"unknown vehicle {vehicle!r}; known: {', '.join(VEHICLE_NAMES)}")
+        vehicle = ev.LEAF if vehicle == "leaf" else cmem.VEHICLES[vehicle]
+    if isinstance(vehicle, ev.LeafVtCpem):
+        fit = ev.eq6_per_mile(t, v)
+        phys = ev.vtcpem_per_mile(t, v, vehicle)
+        return {
+            "vehicle": "leaf",
+            "energy_kj_per_mi": fit.energy_kj_per_mi,
+            "energy_wh_per_mi": fit.energy_wh_per_mi,
+            "regen_vtcpem_kj_per_mi": phys.regen_kj_per_mi,
+            "energy_vtcpem_kj_per_mi": phys.energy_kj_per_mi,
+        }
+    r = cmem.per_mile(t, v, vehicle)
+    return {
+        "vehicle": vehicle.name,
+        "fuel_g_per_mi": r.fuel_g_per_mi,
+        "co2_g_per_mi": r.co2_g_per_mi,
+        "co_g_per_mi": r.co_g_per_mi,
+        "hc_g_per_mi": r.hc_g_per_mi,
+        "nox_g_per_mi": r.nox_g_per_mi,
+        "mpg": r.mpg,
+    }

@@ -1,0 +1,53 @@
+"""``vacc metrics``: every metric of a run log, as a table or JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+
+from energy import RunLogError, evaluate_run
+from energy.metrics import D_SAFE_M, TIME_GAP_S, VEHICLE_NAMES
+
+
+def _fmt(value: float | int | str | None) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, str | int) and not isinstance(value, bool):
+        return str(value)
+    x = float(value)
+    if x == 0.0 or not math.isfinite(x):
+        return f"{x:g}"
+    return f"{x:.4g}" if abs(x) < 1e4 else f"{x:.4e}"
+
+
+@click.command("metrics")
+@click.argument("run_csv", type=click.Path(dir_okay=False))
+@click.option(
+    "--vehicle",
+    type=click.Choice(VEHICLE_NAMES),
+    default="corolla",
+    show_default=True,
+    help="corolla: CMEM calibrated 2022 Corolla; average: paper-era CMEM category; leaf: EV eq. 6.",
+)
+@click.option(
+    "--time-gap", type=float, default=TIME_GAP_S, show_default=True, help="t_gap of d_ref [s]."
+)
+@click.option(
+    "--d-safe", type=float, default=D_SAFE_M, show_default=True, help="d_safe of d_ref [m]."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def metrics(run_csv: str, vehicle: str, time_gap: float, d_safe: float, as_json: bool) -> None:
+    """Print gap, safety, comfort and fuel/emission or energy metrics of RUN_CSV."""
+    try:
+        result = evaluate_run(run_csv, vehicle, time_gap_s=time_gap, d_safe_m=d_safe)
+    except RunLogError as e:
+        raise click.ClickException(str(e)) from None
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    width = max(len(k) for k in result)
+    click.echo(f"{'metric':<{width}}  value")
+    for key, value in result.items():
+        click.echo(f"{key:<{width}}  {_fmt(value)}")
