@@ -1,0 +1,82 @@
+"""Spawn a local simulator server process and always reap it.
+
+The server binds port 0, so the OS picks a free port and there is no race between
+choosing a port and binding it; the launcher reads the bound address from the
+server's first line of output. If the process fails to start, the launch is retried.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+
+from agent_client.errors import ServerLaunchError
+
+__all__ = ["local_server", "READY_PREFIX", "START_TIMEOUT"]
+
+READY_PREFIX = "vacc-server listening on "
+START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
+
+
+def _start(args: list[str], timeout: float) -> tuple[subprocess.Popen[str], tuple[str, int]]:
+    cmd = [sys.executable, "-m", "sim_server", "--port", "0", *args]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True, env=env)
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.1)
+        if ready:
+            line = proc.stdout.readline()
+            if line.startswith(READY_PREFIX):
+                host, _, port = line[len(READY_PREFIX) :].strip().rpartition(":")
+                return proc, (host, int(port))
+            if not line:  # EOF: the process died
+                break
+        elif proc.poll() is not None:
+            break
+    _reap(proc)
+    raise ServerLaunchError(f"simulator server did not start (exit code {proc.returncode}): {' '.join(cmd)}")
+
+
+def _reap(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if proc.stdout is not None:
+        proc.stdout.close()
+
+
+@contextlib.contextmanager
+def local_server(*args: str, retries: int = 2, timeout: float = START_TIMEOUT) -> Iterator[tuple[str, int]]:
+    """Run ``python -m sim_server ARGS`` on 127.0.0.1 for the ``with`` block.
+
+    Yields:
+        The server's (host, port).
+
+    Raises:
+        ServerLaunchError: if it would not start after ``retries`` more tries.
+    """
+    last: ServerLaunchError | None = None
+    for _ in range(retries + 1):
+        try:
+            proc, addr = _start(list(args), timeout)
+            break
+        except ServerLaunchError as exc:
+            last = exc
+    else:
+        assert last is not None
+        raise last
+    try:
+        yield addr
+    finally:
+        _reap(proc)

@@ -1,0 +1,282 @@
+"""A lockstep client session with the simulator server, as a context manager.
+
+    with Session(("127.0.0.1", 47800)) as sim:
+        obs = sim.reset(scenario="ice", seed=1, trajectory="test-1")
+        while not (obs["terminated"] or obs["truncated"]):
+            obs = sim.step(controller(obs))
+
+Every request is re-sent after a timeout that doubles up to a cap; the session gives
+up after ``give_up`` seconds without the expected reply, naming the server address
+and the last frame. Replies are matched by episode and frame, so stale, duplicated
+or reordered datagrams are ignored.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
+from protocol import messages as m
+from protocol.faults import FaultConfig
+from protocol.fragment import DEFAULT_DATAGRAM
+from protocol.transport import Endpoint
+
+__all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
+
+RETRY_INITIAL = 0.02  # [s] first re-send timeout before any round trip is measured
+RETRY_MIN = 0.004  # [s] floor of the adaptive re-send timeout
+RETRY_MAX = 0.5  # [s] re-send interval cap (doubling backoff)
+GIVE_UP = 5.0  # [s] without the expected reply, the session is declared lost
+
+
+def resolve(addr: tuple[str, int]) -> tuple[str, int]:
+    """The numeric address replies come from, so they can be compared exactly."""
+    host, port = addr
+    info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    return info[0][4][:2]
+
+
+class Session:
+    """One client's session with one server.
+
+    Args:
+        server: (host, port) of the server.
+        image_format: "none", "rgb" or "gray": what the observation carries.
+        image_size: (width, height) [px] of the image to ask for.
+        give_up: [s] bound on waiting for any one reply.
+        retry_initial: [s] first re-send timeout.
+        retry_max: [s] re-send timeout cap.
+        faults: fault injection on the client's sends (tests, benchmarks).
+        client_name: shown in the server's logs.
+    """
+
+    def __init__(
+        self,
+        server: tuple[str, int],
+        *,
+        image_format: str = "none",
+        image_size: tuple[int, int] = (400, 400),
+        give_up: float = GIVE_UP,
+        retry_initial: float = RETRY_INITIAL,
+        retry_max: float = RETRY_MAX,
+        faults: FaultConfig | None = None,
+        max_datagram: int = DEFAULT_DATAGRAM,
+        client_name: str = "vacc-client",
+    ):
+        self.server = resolve(server)
+        self.image_format = image_format
+        self.image_size = image_size
+        self.give_up = give_up
+        self.retry_initial = retry_initial
+        self.retry_max = retry_max
+        self.client_name = client_name
+        self.max_datagram = max_datagram
+        family = socket.AF_INET6 if ":" in self.server[0] else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        loopback = self.server[0].startswith("127.") or self.server[0] == "::1"
+        # Bind loopback for a loopback server, so nothing listens on the network.
+        sock.bind((self.server[0] if loopback else "", 0))
+        self.endpoint = Endpoint(sock, max_datagram=max_datagram, faults=faults)
+        self.token: bytes | None = None
+        self.welcome: dict[str, Any] | None = None
+        self.episode = -1
+        self.frame = -1
+        self.resends = 0  # requests re-sent after a timeout
+        self._srtt: float | None = None  # [s] smoothed round trip of unrepeated requests
+        self._closed = False
+        self._heartbeat_seq = 0
+
+    # -- lifecycle ------------------------------------------------------------
+
+    def __enter__(self) -> Session:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> dict[str, Any]:
+        """Handshake; returns the server's welcome.
+
+        Raises:
+            FatalSessionError: the server refused (version, busy past give-up time).
+            ServerTimeout: no answer.
+        """
+        nonce = os.urandom(m.NONCE_BYTES)
+        hello = {
+            "type": "hello",
+            "version": m.PROTOCOL_VERSION,
+            "nonce": nonce,
+            "client": self.client_name,
+            "image_format": self.image_format,
+            "image_width": int(self.image_size[0]),
+            "image_height": int(self.image_size[1]),
+            "max_datagram": self.max_datagram,
+        }
+        deadline = time.monotonic() + self.give_up
+        while True:
+            try:
+                welcome = self._request(hello, lambda r: r["type"] == "welcome" and r["nonce"] == nonce, "hello", deadline)
+                break
+            except SessionError as exc:
+                # BUSY: the world is still held by a vanished client; wait it out.
+                if exc.code != m.ErrorCode.BUSY or time.monotonic() >= deadline:
+                    raise FatalSessionError(f"server {self._where()} refused the session: {exc}", exc.code) from None
+                time.sleep(0.1)
+        self.welcome = welcome
+        self.token = welcome["session"]
+        return welcome
+
+    def close(self) -> None:
+        """Tell the server goodbye (best effort) and release the socket; safe twice."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.token is not None:
+                msg = {"type": "close", "session": self.token}
+                self._request(msg, lambda r: r["type"] == "close", "close", time.monotonic() + min(self.give_up, 0.5))
+        except (FatalSessionError, SessionError):
+            pass  # the server may already be gone; closing must not fail
+        finally:
+            self.endpoint.close()
+
+    # -- lockstep -------------------------------------------------------------
+
+    def reset(
+        self,
+        scenario: str = "ice",
+        seed: int = 0,
+        trajectory: str = "test-1",
+        *,
+        trace: tuple[np.ndarray, np.ndarray] | None = None,
+        duration: float | None = None,
+    ) -> dict[str, Any]:
+        """Start a new episode; returns the observation of frame 0.
+
+        Raises:
+            SessionError: the server refused the reset (unknown scenario, bad trace).
+            FatalSessionError, ServerTimeout: the session is lost.
+        """
+        self._check_open()
+        self.episode += 1
+        episode = self.episode
+        msg = {
+            "type": "reset",
+            "session": self.token,
+            "episode": episode,
+            "scenario": scenario,
+            "seed": int(seed),
+            "trajectory": "trace" if trace is not None else trajectory,
+            "trace_t": None if trace is None else [float(x) for x in trace[0]],
+            "trace_v": None if trace is None else [float(x) for x in trace[1]],
+            "duration": None if duration is None else float(duration),
+        }
+        obs = self._request(
+            msg,
+            lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == 0,
+            f"reset of episode {episode}",
+            error_match=lambda e: e["episode"] in (episode, None),
+        )
+        self.frame = 0
+        return obs
+
+    def step(self, action: float) -> dict[str, Any]:
+        """Apply ``action`` (force u in [-1, 1]) at the current frame; returns the next one.
+
+        Raises:
+            SessionError: the server refused the step (bad action, episode over).
+            FatalSessionError, ServerTimeout: the session is lost.
+        """
+        self._check_open()
+        episode, frame = self.episode, self.frame
+        msg = {"type": "step", "session": self.token, "episode": episode, "frame": frame, "action": float(action)}
+        obs = self._request(
+            msg,
+            lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame + 1,
+            f"step of frame {frame}",
+            error_match=lambda e: e["frame"] in (frame, None) and e["episode"] in (episode, None),
+        )
+        self.frame = frame + 1
+        return obs
+
+    def heartbeat(self) -> None:
+        """Keep an idle session alive (e.g. while a human pauses)."""
+        self._check_open()
+        self._heartbeat_seq += 1
+        seq = self._heartbeat_seq
+        msg = {"type": "heartbeat", "session": self.token, "seq": seq}
+        self._request(msg, lambda r: r["type"] == "heartbeat" and r["seq"] == seq, "heartbeat")
+
+    @staticmethod
+    def image(obs: dict[str, Any]) -> np.ndarray | None:
+        """The observation's camera frame as a uint8 array (H, W, C) or (H, W), or None."""
+        if obs["image"] is None:
+            return None
+        h, w, c = obs["image_shape"]
+        pixels = np.frombuffer(obs["image"], dtype=np.uint8)
+        if pixels.size != h * w * c:
+            raise FatalSessionError(f"image of {pixels.size} bytes does not match shape {obs['image_shape']}")
+        return pixels.reshape((h, w) if c == 1 else (h, w, c))
+
+    # -- plumbing -------------------------------------------------------------
+
+    def _where(self) -> str:
+        return f"{self.server[0]}:{self.server[1]}"
+
+    def _check_open(self) -> None:
+        if self._closed or self.token is None:
+            raise FatalSessionError(f"session with {self._where()} is not open")
+
+    def _request(
+        self,
+        msg: dict[str, Any],
+        accept: Callable[[dict[str, Any]], bool],
+        what: str,
+        deadline: float | None = None,
+        error_match: Callable[[dict[str, Any]], bool] = lambda e: True,
+    ) -> dict[str, Any]:
+        endpoint, server = self.endpoint, self.server
+        datagrams = endpoint.pack(msg)
+        endpoint.send_datagrams(datagrams, server)
+        now = time.monotonic()
+        deadline = deadline if deadline is not None else now + self.give_up
+        sent_at = now
+        # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
+        # requests answered without a re-send update the estimate).
+        wait = self.retry_initial if self._srtt is None else min(self.retry_max, max(RETRY_MIN, 4.0 * self._srtt))
+        resent = False
+        resend_at = now + wait
+        while True:
+            got = endpoint.receive(max(0.0, min(resend_at, deadline) - now))
+            now = time.monotonic()
+            if got is not None and got.msg is not None and got.addr == server:
+                reply = got.msg
+                if accept(reply):
+                    if not resent:
+                        rtt = now - sent_at
+                        self._srtt = rtt if self._srtt is None else 0.875 * self._srtt + 0.125 * rtt
+                    return reply
+                if reply["type"] == "error" and error_match(reply):
+                    text = f"server {self._where()}: {reply['name']}: {reply['detail']}"
+                    if reply["fatal"]:
+                        self.token = None if reply["code"] == m.ErrorCode.NO_SESSION else self.token
+                        raise FatalSessionError(text, reply["code"])
+                    raise SessionError(text, reply["code"])
+                continue  # stale or duplicate reply
+            if now >= deadline:
+                raise ServerTimeout(
+                    f"no reply from server {self._where()} to {what} (episode {self.episode}, "
+                    f"last frame {self.frame}) within {self.give_up:g} s"
+                )
+            if now >= resend_at:
+                endpoint.send_datagrams(datagrams, server)
+                self.resends += 1
+                resent = True
+                wait = min(wait * 2, self.retry_max)
+                resend_at = now + wait

@@ -1,0 +1,95 @@
+"""Seeded fault injection on the sending side of a UDP socket.
+
+Either side can wrap its sends to drop, duplicate, reorder or truncate datagrams at
+given rates, so the lockstep rules can be tested on the real processes. The fault
+stream has its own seed and never touches simulation randomness: with the same
+world seed and actions, a run is bit-identical whatever the faults.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = ["FaultConfig", "FaultySender"]
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Rates of each fault, per datagram sent."""
+
+    drop: float = 0.0  # probability a datagram is not sent
+    dup: float = 0.0  # probability it is sent twice
+    reorder: float = 0.0  # probability it is held back and sent after the next one
+    truncate: float = 0.0  # probability it loses a random tail
+    seed: int = 0  # seed of the fault stream
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if f.name != "seed" and not 0.0 <= getattr(self, f.name) <= 1.0:
+                raise ValueError(f"fault rate {f.name}={getattr(self, f.name)} is outside [0, 1]")
+
+    @property
+    def active(self) -> bool:
+        return any((self.drop, self.dup, self.reorder, self.truncate))
+
+    @classmethod
+    def parse(cls, spec: str) -> FaultConfig:
+        """Parse ``"drop=0.1,dup=0.05,reorder=0.05,truncate=0,seed=3"``.
+
+        Raises:
+            ValueError: naming the bad item.
+        """
+        values: dict[str, float | int] = {}
+        names = {f.name for f in fields(cls)}
+        for item in filter(None, (part.strip() for part in spec.split(","))):
+            key, sep, raw = item.partition("=")
+            if not sep or key not in names:
+                raise ValueError(f"bad fault item {item!r}: expected one of {sorted(names)} as NAME=VALUE")
+            try:
+                values[key] = int(raw) if key == "seed" else float(raw)
+            except ValueError:
+                raise ValueError(f"bad fault item {item!r}: {raw!r} is not a number") from None
+        return cls(**values)  # type: ignore[arg-type]
+
+
+class FaultySender:
+    """Sends datagrams through ``sock``, injecting the faults of ``config``."""
+
+    def __init__(self, sock: socket.socket, config: FaultConfig):
+        self.sock = sock
+        self.config = config
+        self.rng = np.random.default_rng(config.seed)
+        self._held: list[tuple[bytes, object]] = []
+        self.counts = {"sent": 0, "dropped": 0, "duplicated": 0, "reordered": 0, "truncated": 0}
+
+    def sendto(self, data: bytes, addr: object) -> None:
+        c = self.config
+        roll = self.rng.random(4)
+        if roll[0] < c.drop:
+            self.counts["dropped"] += 1
+        else:
+            if roll[3] < c.truncate and len(data) > 1:
+                data = data[: int(self.rng.integers(1, len(data)))]
+                self.counts["truncated"] += 1
+            if roll[2] < c.reorder:
+                self._held.append((data, addr))
+                self.counts["reordered"] += 1
+                return
+            self._send(data, addr)
+            if roll[1] < c.dup:
+                self._send(data, addr)
+                self.counts["duplicated"] += 1
+        # A held datagram goes out after the next one, so it arrives late, not never.
+        held, self._held = self._held, []
+        for item in held:
+            self._send(*item)
+
+    def _send(self, data: bytes, addr: object) -> None:
+        self.counts["sent"] += 1
+        try:
+            self.sock.sendto(data, addr)
+        except OSError:
+            pass  # a full buffer is just another loss

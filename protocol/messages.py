@@ -1,0 +1,226 @@
+"""Message schemas of the vacc wire protocol (version 1).
+
+Every message is a msgpack map with a ``"type"`` tag. This module is the single
+source of truth for which fields each type carries and of which wire type; the
+codec (:mod:`protocol.codec`) checks every decoded message against it, and
+``protocol/SPEC.md`` documents it for implementers in other languages.
+
+Field types use msgpack's vocabulary: ``int``, ``float`` (an int is accepted where a
+float is expected), ``bool``, ``str``, ``bin``, ``nil`` and ``array``.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+from typing import Any
+
+from protocol.errors import SchemaError
+
+__all__ = [
+    "PROTOCOL_VERSION",
+    "MESSAGE_TYPES",
+    "ErrorCode",
+    "FATAL_CODES",
+    "SCHEMAS",
+    "validate",
+    "make",
+    "error",
+]
+
+PROTOCOL_VERSION = 1
+
+# Image formats a client may ask for in the handshake.
+IMAGE_FORMATS = ("none", "rgb", "gray")
+MAX_IMAGE_SIDE = 1024  # [px] largest width or height a client may ask for
+TOKEN_BYTES = 16  # session token length
+NONCE_BYTES = 8  # handshake nonce length
+
+
+class ErrorCode(IntEnum):
+    """Error codes carried by ``error`` messages.
+
+    Recoverable codes leave the session as it was; fatal ones end it (the client
+    must start a new handshake).
+    """
+
+    BAD_MESSAGE = 1  # undecodable or wrong shape; dropped datagrams are only counted
+    BAD_VERSION = 2  # handshake with another protocol version (fatal)
+    NO_SESSION = 3  # unknown or expired session token (fatal)
+    BUSY = 4  # the server's one world is in use by another session
+    BAD_FRAME = 5  # step for a frame that is neither current nor the last answered
+    BAD_ACTION = 6  # action not finite or outside [-1, 1]
+    BAD_RESET = 7  # unknown scenario or trajectory, or a bad trace
+    EPISODE_OVER = 8  # step after the episode terminated or was truncated
+    NO_EPISODE = 9  # step before any reset, or for another episode
+    INTERNAL = 10  # a bug on the server (fatal)
+
+
+FATAL_CODES = frozenset({ErrorCode.BAD_VERSION, ErrorCode.NO_SESSION, ErrorCode.INTERNAL})
+
+_INT = ("int",)
+_FLOAT = ("float",)
+_BOOL = ("bool",)
+_STR = ("str",)
+_BIN = ("bin",)
+_OPT_FLOAT = ("float", "nil")
+_OPT_INT = ("int", "nil")
+_OPT_ARRAY = ("array", "nil")
+_OPT_BIN = ("bin", "nil")
+
+# type tag -> {field: allowed wire types}. Every field is required; nil is a value.
+SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
+    # client -> server: open a session
+    "hello": {
+        "version": _INT,
+        "nonce": _BIN,  # NONCE_BYTES random bytes; a repeated hello is answered again
+        "client": _STR,  # free-form client name, for logs
+        "image_format": _STR,  # one of IMAGE_FORMATS
+        "image_width": _INT,  # [px]
+        "image_height": _INT,  # [px]
+        "max_datagram": _INT,  # [bytes] largest datagram the client accepts
+    },
+    # server -> client: session opened
+    "welcome": {
+        "version": _INT,
+        "nonce": _BIN,  # echo of the hello's nonce
+        "session": _BIN,  # TOKEN_BYTES token to carry in every later request
+        "server": _STR,
+        "physics_dt": _FLOAT,  # [s]
+        "control_period": _FLOAT,  # [s] simulated time per step
+        "image_format": _STR,
+        "image_width": _INT,
+        "image_height": _INT,
+        "max_datagram": _INT,  # [bytes] what the server will send
+        "session_timeout": _FLOAT,  # [s] idle time after which the session is freed
+    },
+    # client -> server: start episode `episode` (answered with obs frame 0)
+    "reset": {
+        "session": _BIN,
+        "episode": _INT,  # client's episode counter, strictly increasing
+        "scenario": _STR,  # "ice" | "ev"
+        "seed": _INT,  # world seed: initial conditions, traffic, scenery, random trajectory
+        "trajectory": _STR,  # "test-1".."test-4" | "random" | "trace"
+        "trace_t": _OPT_ARRAY,  # [s] lead speed trace times when trajectory == "trace"
+        "trace_v": _OPT_ARRAY,  # [m/s] lead speed trace values
+        "duration": _OPT_FLOAT,  # [s] truncate the episode earlier than the trajectory
+    },
+    # client -> server: apply `action` at frame `frame` (answered with obs frame+1)
+    "step": {
+        "session": _BIN,
+        "episode": _INT,
+        "frame": _INT,
+        "action": _FLOAT,  # normalised force u in [-1, 1]
+    },
+    # server -> client: the state of frame `frame`
+    "obs": {
+        "episode": _INT,
+        "frame": _INT,
+        "t": _FLOAT,  # [s] simulated time of this frame
+        "v_host": _FLOAT,  # [m/s]
+        "v_lead": _FLOAT,  # [m/s]
+        "gap": _FLOAT,  # [m] bumper to bumper; reward and logging only
+        "accel": _FLOAT,  # [m/s^2] host acceleration over the last control period
+        "a_lead": _FLOAT,  # [m/s^2] lead acceleration over the last control period
+        "force": _FLOAT,  # the u that produced this frame (0 at frame 0)
+        "collision": _BOOL,
+        "terminated": _BOOL,  # collision or gap > limit
+        "truncated": _BOOL,  # end of trajectory or duration
+        "reason": _STR,  # "", "collision", "gap", "end"
+        "image": _OPT_BIN,  # row-major uint8 pixels, or nil for image_format "none"
+        "image_shape": _OPT_ARRAY,  # [height, width, channels] or nil
+    },
+    # client -> server: end the session; answered with a close echo
+    "close": {"session": _BIN},
+    # either way
+    "error": {
+        "code": _INT,  # ErrorCode
+        "name": _STR,  # ErrorCode name, for humans
+        "detail": _STR,
+        "fatal": _BOOL,
+        "episode": _OPT_INT,
+        "frame": _OPT_INT,
+    },
+    # client -> server keeps an idle session alive; the server echoes it
+    "heartbeat": {"session": _BIN, "seq": _INT},
+}
+
+MESSAGE_TYPES = frozenset(SCHEMAS)
+
+
+def _wire_type(value: Any) -> str:
+    # bool before int: bool is a subclass of int in Python.
+    if value is None:
+        return "nil"
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "int"
+    if isinstance(value, float):
+        return "float"
+    if isinstance(value, str):
+        return "str"
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return "bin"
+    if isinstance(value, (list, tuple)):
+        return "array"
+    return type(value).__name__
+
+
+def validate(msg: Any) -> dict[str, Any]:
+    """Check a decoded value against :data:`SCHEMAS`.
+
+    Args:
+        msg: the value msgpack produced.
+
+    Returns:
+        The same map, typed as a message.
+
+    Raises:
+        SchemaError: if it is not a map, has an unknown type tag, misses a field,
+            has an unknown field, or a field of the wrong wire type.
+    """
+    if not isinstance(msg, dict):
+        raise SchemaError(f"message is a {_wire_type(msg)}, not a map")
+    kind = msg.get("type")
+    schema = SCHEMAS.get(kind) if isinstance(kind, str) else None
+    if schema is None:
+        raise SchemaError(f"unknown message type {kind!r}")
+    if len(msg) != len(schema) + 1:
+        extra = sorted(set(map(str, msg)) - set(schema) - {"type"})
+        missing = sorted(set(schema) - set(msg))
+        raise SchemaError(f"{kind}: unknown fields {extra}, missing fields {missing}")
+    for name, allowed in schema.items():
+        if name not in msg:
+            raise SchemaError(f"{kind}: missing field {name!r}")
+        got = _wire_type(msg[name])
+        if got not in allowed and not (got == "int" and "float" in allowed):
+            raise SchemaError(f"{kind}.{name}: expected {'|'.join(allowed)}, got {got}")
+    return msg
+
+
+def make(kind: str, **fields: Any) -> dict[str, Any]:
+    """Build a message and check it, for senders that want the check.
+
+    Raises:
+        SchemaError: as :func:`validate`.
+    """
+    return validate({"type": kind, **fields})
+
+
+def error(
+    code: ErrorCode,
+    detail: str,
+    *,
+    episode: int | None = None,
+    frame: int | None = None,
+) -> dict[str, Any]:
+    """Build an ``error`` message for ``code``."""
+    return {
+        "type": "error",
+        "code": int(code),
+        "name": code.name,
+        "detail": detail,
+        "fatal": code in FATAL_CODES,
+        "episode": episode,
+        "frame": frame,
+    }

@@ -1,0 +1,81 @@
+"""`vacc serve` / `python -m sim_server`: run one simulator server."""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+import click
+
+from protocol.faults import FaultConfig
+from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
+from sim_server.server import LOOPBACK_HOSTS, ServerConfig, SimServer
+from sim_server.world import WorldConfig
+
+
+def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> FaultConfig | None:
+    if not value:
+        return None
+    try:
+        return FaultConfig.parse(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
+@click.command("serve")
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
+@click.option("--port", default=47800, show_default=True, type=click.IntRange(0, 65535), help="UDP port; 0 picks a free one.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Salt mixed into every episode seed.")
+@click.option("--realtime", is_flag=True, help="Pace the world to the wall clock (for a human driver).")
+@click.option("--substeps", default=5, show_default=True, type=click.IntRange(1, 1000), help="Physics steps of 0.02 s per control step.")
+@click.option("--session-timeout", default=10.0, show_default=True, type=click.FloatRange(0.1, 3600), help="Seconds of silence before a client's session is freed.")
+@click.option("--faults", callback=_faults, default=None, help="Inject faults on sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05,seed=1'.")
+@click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")
+@click.option("--allow-remote", is_flag=True, help="Allow binding an address other than loopback.")
+@click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
+def serve(
+    host: str,
+    port: int,
+    seed: int,
+    realtime: bool,
+    substeps: int,
+    session_timeout: float,
+    faults: FaultConfig | None,
+    max_datagram: int,
+    allow_remote: bool,
+    max_seconds: float | None,
+) -> None:
+    """Run a simulator server: one world, lockstep over UDP.
+
+    Prints 'vacc-server listening on HOST:PORT' once bound, then serves until
+    interrupted. Counters of served and rejected datagrams are printed at exit.
+    """
+    if host not in LOOPBACK_HOSTS and not host.startswith("127."):
+        if not allow_remote:
+            raise click.UsageError(f"--host {host} is not a loopback address; pass --allow-remote to bind it")
+        click.echo(f"warning: binding {host}: the simulator is reachable from the network", err=True)
+    config = ServerConfig(
+        host=host,
+        port=port,
+        seed=seed,
+        realtime=realtime,
+        session_timeout=session_timeout,
+        world=WorldConfig(substeps=substeps),
+        faults=faults,
+        max_datagram=max_datagram,
+    )
+    try:
+        server = SimServer(config)
+    except OSError as exc:
+        raise click.ClickException(f"cannot bind {host}:{port}: {exc.strerror or exc}") from None
+    with server:
+        signal.signal(signal.SIGTERM, lambda *_: server.stop())
+        h, p = server.address
+        click.echo(f"vacc-server listening on {h}:{p}")
+        sys.stdout.flush()
+        try:
+            server.serve(max_seconds=max_seconds)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            click.echo(f"vacc-server stats: {server.stats_line()}", err=True)

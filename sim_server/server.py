@@ -1,0 +1,317 @@
+"""The simulator server: one world, one session at a time, lockstep over UDP.
+
+The server owns time. It advances exactly one control period per ``step`` it
+receives and answers with the observation of the new frame. A repeated request
+(the client re-sends after a timeout) is answered from a cache, never simulated
+twice, so lost, duplicated or reordered datagrams cannot change a run.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from protocol import messages as m
+from protocol.errors import ProtocolError, VersionError
+from protocol.faults import FaultConfig
+from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
+from protocol.messages import ErrorCode
+from protocol.transport import Endpoint
+from sim_server.errors import SimError
+from sim_server.world import World, WorldConfig, WorldState
+
+__all__ = ["ServerConfig", "SimServer", "LOOPBACK_HOSTS"]
+
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    """Settings of a simulator server."""
+
+    host: str = "127.0.0.1"
+    port: int = 47800  # 0 picks a free port
+    seed: int = 0  # salts every episode seed
+    realtime: bool = False  # pace replies to the wall clock (a human at the wheel)
+    session_timeout: float = 10.0  # [s] idle time before a session is freed
+    world: WorldConfig = field(default_factory=WorldConfig)
+    faults: FaultConfig | None = None  # inject faults on the server's sends
+    max_datagram: int = DEFAULT_DATAGRAM  # [bytes] cap on what the server sends
+
+
+@dataclass
+class _Session:
+    token: bytes
+    addr: Any
+    nonce: bytes
+    welcome: list[bytes]  # cached welcome datagrams
+    image_format: str
+    image_size: tuple[int, int]  # (width, height) [px]
+    last_seen: float  # [s] monotonic
+    episode: int = -1
+    frame: int = 0
+    state: WorldState | None = None
+    reset_reply: list[bytes] = field(default_factory=list)
+    step_reply: list[bytes] = field(default_factory=list)  # reply to step(frame - 1)
+    wall_start: float = 0.0  # [s] realtime pacing origin
+    renderer: Any = None
+
+
+class SimServer:
+    """A UDP simulator server. Use as a context manager, then :meth:`serve`."""
+
+    def __init__(self, config: ServerConfig):
+        self.config = config
+        sock = socket.socket(socket.AF_INET6 if ":" in config.host else socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind((config.host, config.port))
+        self.endpoint = Endpoint(sock, max_datagram=config.max_datagram, faults=config.faults)
+        self.address = sock.getsockname()[:2]
+        self.world = World(config.world, salt=config.seed)
+        self.session: _Session | None = None
+        self.stats: Counter[str] = Counter()
+        self._running = False
+
+    def __enter__(self) -> SimServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the socket; safe to call twice."""
+        self.endpoint.close()
+
+    def stop(self) -> None:
+        """Ask :meth:`serve` to return after the current datagram."""
+        self._running = False
+
+    def stats_line(self) -> str:
+        """Counters of served and rejected datagrams, for the log at close."""
+        counts = self.stats + Counter({f"rejected.{k}": v for k, v in self.endpoint.rejected.items()})
+        return " ".join(f"{k}={v}" for k, v in sorted(counts.items())) or "idle"
+
+    def serve(self, max_seconds: float | None = None) -> None:
+        """Answer requests until :meth:`stop` or ``max_seconds`` have passed."""
+        self._running = True
+        deadline = None if max_seconds is None else time.monotonic() + max_seconds
+        while self._running:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                break
+            self._expire(now)
+            got = self.endpoint.receive(0.5)
+            if got is None or got.addr is None:
+                continue
+            if got.error is not None:
+                self._reject(got.error, got.addr)
+            elif got.msg is not None:
+                self.stats[f"rx.{got.msg['type']}"] += 1
+                try:
+                    self._dispatch(got.msg, got.addr)
+                except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
+                    self.stats["internal_errors"] += 1
+                    print(f"vacc-server: internal error on {got.msg['type']}: {exc!r}", file=sys.stderr)
+                    self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc))
+
+    # -- requests -------------------------------------------------------------
+
+    def _reject(self, exc: ProtocolError, addr: Any) -> None:
+        self.stats["rejected"] += 1
+        if isinstance(exc, VersionError):
+            # The one bad datagram worth answering: the peer can fix its version.
+            self._send_error(addr, ErrorCode.BAD_VERSION, str(exc))
+
+    def _send_error(self, addr: Any, code: ErrorCode, detail: str, **where: int | None) -> None:
+        self.stats[f"tx.error.{code.name}"] += 1
+        self.endpoint.send(m.error(code, detail, **where), addr)
+
+    def _dispatch(self, msg: dict[str, Any], addr: Any) -> None:
+        kind = msg["type"]
+        if kind == "hello":
+            self._hello(msg, addr)
+            return
+        if kind in ("welcome", "obs", "error"):
+            self.stats["rejected.wrong_direction"] += 1
+            return
+        session = self.session
+        if session is None or msg["session"] != session.token:
+            if kind == "close":
+                self.endpoint.send({"type": "close", "session": msg["session"]}, addr)
+            else:
+                self.stats["rejected.no_session"] += 1
+                self._send_error(addr, ErrorCode.NO_SESSION, "unknown or expired session token")
+            return
+        if addr != session.addr:
+            # A valid token from another address is a hijack attempt: not served.
+            self.stats["rejected.wrong_address"] += 1
+            return
+        session.last_seen = time.monotonic()
+        if kind == "step":
+            self._step(session, msg, addr)
+        elif kind == "reset":
+            self._reset(session, msg, addr)
+        elif kind == "heartbeat":
+            self.endpoint.send({"type": "heartbeat", "session": session.token, "seq": msg["seq"]}, addr)
+        elif kind == "close":
+            self.endpoint.send({"type": "close", "session": session.token}, addr)
+            self.session = None
+            self.stats["sessions_closed"] += 1
+
+    def _hello(self, msg: dict[str, Any], addr: Any) -> None:
+        session = self.session
+        if session is not None and session.addr == addr and session.nonce == msg["nonce"]:
+            self.endpoint.send_datagrams(session.welcome, addr)  # a repeated hello
+            return
+        if msg["version"] != m.PROTOCOL_VERSION:
+            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}, hello says {msg['version']}")
+            return
+        if session is not None:
+            self._send_error(addr, ErrorCode.BUSY, f"the world is in use by {session.addr}; retry later")
+            return
+        fmt, width, height = msg["image_format"], msg["image_width"], msg["image_height"]
+        problem = None
+        if fmt not in m.IMAGE_FORMATS:
+            problem = f"image_format {fmt!r} is not one of {m.IMAGE_FORMATS}"
+        elif fmt != "none" and not (1 <= width <= m.MAX_IMAGE_SIDE and 1 <= height <= m.MAX_IMAGE_SIDE):
+            problem = f"image size {width}x{height} outside 1..{m.MAX_IMAGE_SIDE}"
+        elif not MIN_DATAGRAM <= msg["max_datagram"] <= MAX_DATAGRAM:
+            problem = f"max_datagram {msg['max_datagram']} outside {MIN_DATAGRAM}..{MAX_DATAGRAM}"
+        elif len(msg["nonce"]) != m.NONCE_BYTES:
+            problem = f"nonce must be {m.NONCE_BYTES} bytes"
+        if problem:
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, problem)
+            return
+        token = os.urandom(m.TOKEN_BYTES)  # a capability, not simulation randomness
+        max_datagram = min(msg["max_datagram"], self.config.max_datagram)
+        cfg = self.config.world
+        welcome = {
+            "type": "welcome",
+            "version": m.PROTOCOL_VERSION,
+            "nonce": msg["nonce"],
+            "session": token,
+            "server": "vacc-sim/0.1",
+            "physics_dt": cfg.physics_dt,
+            "control_period": cfg.control_period,
+            "image_format": fmt,
+            "image_width": width if fmt != "none" else 0,
+            "image_height": height if fmt != "none" else 0,
+            "max_datagram": max_datagram,
+            "session_timeout": self.config.session_timeout,
+        }
+        self.endpoint.max_datagram = max_datagram
+        datagrams = self.endpoint.pack(welcome)
+        self.session = _Session(token, addr, msg["nonce"], datagrams, fmt, (width, height), time.monotonic())
+        self.stats["sessions_opened"] += 1
+        self.endpoint.send_datagrams(datagrams, addr)
+
+    def _reset(self, s: _Session, msg: dict[str, Any], addr: Any) -> None:
+        episode = msg["episode"]
+        if episode == s.episode:
+            self.endpoint.send_datagrams(s.reset_reply, addr)  # a repeated reset
+            return
+        if episode < s.episode:
+            self._send_error(addr, ErrorCode.BAD_RESET, f"episode {episode} is older than {s.episode}", episode=episode)
+            return
+        trace = None
+        if msg["trajectory"] == "trace":
+            if msg["trace_t"] is None or msg["trace_v"] is None:
+                self._send_error(addr, ErrorCode.BAD_RESET, "trajectory 'trace' needs trace_t and trace_v", episode=episode)
+                return
+            try:
+                trace = (np.asarray(msg["trace_t"], dtype=float), np.asarray(msg["trace_v"], dtype=float))
+            except (TypeError, ValueError):
+                self._send_error(addr, ErrorCode.BAD_RESET, "trace_t and trace_v must be arrays of numbers", episode=episode)
+                return
+        duration = msg["duration"]
+        if duration is not None and not (math.isfinite(duration) and duration > 0):
+            self._send_error(addr, ErrorCode.BAD_RESET, f"duration {duration} must be > 0 s", episode=episode)
+            return
+        try:
+            state = self.world.reset(msg["scenario"], msg["seed"], msg["trajectory"], trace=trace, duration=duration)
+        except SimError as exc:
+            self._send_error(addr, ErrorCode.BAD_RESET, str(exc), episode=episode)
+            return
+        s.episode, s.frame, s.state = episode, 0, state
+        s.step_reply = []
+        s.wall_start = time.monotonic()
+        s.reset_reply = self.endpoint.send(self._obs(s, state), addr)
+
+    def _step(self, s: _Session, msg: dict[str, Any], addr: Any) -> None:
+        episode, frame = msg["episode"], msg["frame"]
+        if s.state is None or episode != s.episode:
+            self._send_error(addr, ErrorCode.NO_EPISODE, f"no episode {episode} (current {s.episode})", episode=episode, frame=frame)
+            return
+        if frame == s.frame - 1 and s.step_reply:
+            self.stats["cached_replies"] += 1
+            self.endpoint.send_datagrams(s.step_reply, addr)
+            return
+        if frame != s.frame:
+            self._send_error(addr, ErrorCode.BAD_FRAME, f"step for frame {frame}, server is at frame {s.frame}", episode=episode, frame=frame)
+            return
+        u = msg["action"]
+        if not (math.isfinite(u) and -1.0 <= u <= 1.0):
+            self._send_error(addr, ErrorCode.BAD_ACTION, f"action {u!r} is not a finite number in [-1, 1]", episode=episode, frame=frame)
+            return
+        if s.state.terminated or s.state.truncated:
+            self._send_error(addr, ErrorCode.EPISODE_OVER, f"episode {episode} ended at frame {s.frame} ({s.state.reason})", episode=episode, frame=frame)
+            return
+        state = self.world.step(float(u))
+        s.state, s.frame = state, state.frame
+        obs = self._obs(s, state)
+        if self.config.realtime:
+            # Pace to the wall clock; a slow client only makes the world wait.
+            delay = s.wall_start + state.t - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        s.step_reply = self.endpoint.send(obs, addr)
+
+    def _obs(self, s: _Session, state: WorldState) -> dict[str, Any]:
+        image, shape = None, None
+        if s.image_format != "none":
+            pixels = self._render(s)
+            image, shape = pixels.tobytes(), list(pixels.shape if pixels.ndim == 3 else (*pixels.shape, 1))
+        return {
+            "type": "obs",
+            "episode": s.episode,
+            "frame": state.frame,
+            "t": state.t,
+            "v_host": state.v_host,
+            "v_lead": state.v_lead,
+            "gap": state.gap,
+            "accel": state.accel,
+            "a_lead": state.a_lead,
+            "force": state.force,
+            "collision": state.collision,
+            "terminated": state.terminated,
+            "truncated": state.truncated,
+            "reason": state.reason,
+            "image": image,
+            "image_shape": shape,
+        }
+
+    def _render(self, s: _Session) -> np.ndarray:
+        if s.renderer is None:
+            from sim_server.render import CameraConfig, Renderer  # only image sessions pay for it
+
+            s.renderer = Renderer(CameraConfig(width=s.image_size[0], height=s.image_size[1]))
+        rgb = s.renderer.render(self.world.scene())
+        if s.image_format == "gray":
+            import cv2
+
+            return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        return rgb
+
+    def _expire(self, now: float) -> None:
+        s = self.session
+        if s is not None and now - s.last_seen > self.config.session_timeout:
+            print(f"vacc-server: session of {s.addr} idle for {now - s.last_seen:.1f} s, freed", file=sys.stderr)
+            self.session = None
+            self.stats["sessions_expired"] += 1

@@ -1,0 +1,29 @@
+"""Longitudinal vehicle model: normalised force to acceleration, speed never negative."""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["A_MIN", "A_MAX", "accel_of_force", "advance_speed"]
+
+A_MIN = -5.5  # [m/s^2] at u = -1 (full brake), paper Sec. 4
+A_MAX = 3.5  # [m/s^2] at u = +1 (full throttle)
+
+
+def accel_of_force(u: float) -> float:
+    """Map the normalised force u in [-1, 1] to a commanded acceleration [m/s^2].
+
+    The map is linear on each side of zero, so u = 0 coasts at constant speed
+    (road load is the energy model's business, not the controller's).
+
+    Raises:
+        ValueError: if u is not finite or outside [-1, 1].
+    """
+    if not (math.isfinite(u) and -1.0 <= u <= 1.0):
+        raise ValueError(f"force {u!r} is not a finite number in [-1, 1]")
+    return u * A_MAX if u >= 0.0 else -u * A_MIN
+
+
+def advance_speed(v: float, a: float, dt: float) -> float:
+    """Speed [m/s] after ``dt`` [s] at acceleration ``a`` [m/s^2], clamped at 0."""
+    return max(0.0, v + a * dt)

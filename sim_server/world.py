@@ -1,0 +1,254 @@
+"""The simulated world: host, lead and adjacent-lane traffic as pymunk bodies.
+
+Axes: x along the road in the direction of travel [m], y across it, positive to the
+host's right [m]. The host drives in the middle lane (y = 0). Bodies are boxes of a
+car's footprint; pymunk detects the host's collisions with any other car.
+
+The host is a dynamic body whose velocity the longitudinal model sets every physics
+step; the lead and traffic are kinematic bodies that follow their speed profiles.
+Collision response is switched off: a collision ends the episode, so only its
+detection matters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from sim_server import trajectory as traj
+from sim_server.scene import CAR_LENGTH, CAR_WIDTH, LANE_WIDTH, CarView, SceneState
+from sim_server.vehicle import accel_of_force, advance_speed
+
+__all__ = ["WorldConfig", "WorldState", "World"]
+
+HOST, LEAD, TRAFFIC = 1, 2, 3  # pymunk collision types
+GAP_LIMIT = 300.0  # [m] the episode terminates beyond this gap (paper Sec. 3)
+BRAKE_LIGHT_ACCEL = -0.3  # [m/s^2] lead brake lights come on below this
+TRAFFIC_AHEAD = 250.0  # [m] traffic is kept within this window around the host
+TRAFFIC_BEHIND = 100.0  # [m]
+TRAFFIC_COLORS = ((40, 70, 150), (200, 200, 205), (30, 30, 35), (120, 125, 130), (150, 120, 60), (60, 110, 70))
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Timing and traffic settings of a world."""
+
+    physics_dt: float = 0.02  # [s] paper Sec. 4
+    substeps: int = 5  # physics steps per control step: 0.1 s control period (10 Hz)
+    traffic_per_lane: int = 3  # cars in each adjacent and oncoming lane
+    randomize_light: bool = True  # draw the sun per episode for random trajectories
+
+    @property
+    def control_period(self) -> float:
+        """Simulated time per control step [s]."""
+        return self.physics_dt * self.substeps
+
+
+@dataclass(frozen=True)
+class WorldState:
+    """The world after a control step, in SI units."""
+
+    frame: int
+    t: float  # [s]
+    v_host: float  # [m/s]
+    v_lead: float  # [m/s]
+    gap: float  # [m] host front bumper to lead rear bumper
+    accel: float  # [m/s^2] host, over the last control period
+    a_lead: float  # [m/s^2] lead, over the last control period
+    force: float  # u applied over the last control period
+    collision: bool
+    terminated: bool
+    truncated: bool
+    reason: str  # "", "collision", "gap" or "end"
+
+
+def _car(space: pymunk.Space, kind: int, x: float, y: float, body_type: int) -> pymunk.Body:
+    if body_type == pymunk.Body.DYNAMIC:
+        body = pymunk.Body(1500.0, float("inf"))  # [kg]; no rotation
+    else:
+        body = pymunk.Body(body_type=body_type)
+    body.position = (x, y)
+    shape = pymunk.Poly.create_box(body, (CAR_LENGTH, CAR_WIDTH))
+    shape.collision_type = kind
+    space.add(body, shape)
+    return body
+
+
+class World:
+    """One episode's world. Deterministic: same seed and actions, same states.
+
+    Args:
+        config: timing and traffic settings.
+        salt: mixed into every episode seed (the server's ``--seed``).
+    """
+
+    def __init__(self, config: WorldConfig | None = None, salt: int = 0):
+        self.config = config or WorldConfig()
+        self.salt = salt
+        self.state: WorldState | None = None
+
+    def reset(
+        self,
+        scenario: str,
+        seed: int,
+        trajectory: str,
+        *,
+        trace: tuple[np.ndarray, np.ndarray] | None = None,
+        duration: float | None = None,
+    ) -> WorldState:
+        """Start an episode; returns frame 0.
+
+        Raises:
+            ScenarioError, TrajectoryError: from :func:`trajectory.build`.
+        """
+        cfg = self.config
+        rng = np.random.default_rng([self.salt & 0xFFFFFFFF, seed & 0xFFFFFFFFFFFFFFFF])
+        self.v_lead_profile = traj.build(scenario, trajectory, rng, cfg.physics_dt, trace=trace)
+        lim = traj.LIMITS[scenario]
+        steps = len(self.v_lead_profile) - 1
+        if duration is not None:
+            steps = min(steps, int(round(duration / cfg.physics_dt)))
+        self.last_frame = steps // cfg.substeps
+        v_host = float(rng.uniform(*lim.v0_host))
+        gap = float(rng.uniform(*lim.gap0))
+        self.scenario, self.seed = scenario, seed
+        if cfg.randomize_light and trajectory == "random":
+            self.light = (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(0.35, 1.2)))
+        else:
+            self.light = (0.6, 0.8)
+
+        self.space = space = pymunk.Space()
+        space.on_collision(HOST, LEAD, begin=self._on_collision)
+        space.on_collision(HOST, TRAFFIC, begin=self._on_collision)
+        self.host = _car(space, HOST, 0.0, 0.0, pymunk.Body.DYNAMIC)
+        self.host.velocity = (v_host, 0.0)
+        self.lead = _car(space, LEAD, gap + CAR_LENGTH, 0.0, pymunk.Body.KINEMATIC)
+        self.lead.velocity = (float(self.v_lead_profile[0]), 0.0)
+        self._spawn_traffic(rng, float(np.mean(self.v_lead_profile)))
+        self._rng = rng
+        self._collided = False
+        self.odometer = 0.0  # [m] host distance travelled
+        self.step_index = 0  # physics steps since reset
+        self.state = self._state(0, 0.0, 0.0, 0.0, 0.0)
+        return self.state
+
+    def _spawn_traffic(self, rng: np.random.Generator, v_mean: float) -> None:
+        # Faster traffic on the left, slower on the right (paper Sec. 3); oncoming
+        # traffic beyond the median only for the camera, outside the physics.
+        self.traffic: list[tuple[pymunk.Body, int, tuple[int, int, int]]] = []
+        for lane, dv in ((-1, (2.0, 6.0)), (1, (-6.0, -2.0))):
+            for _ in range(self.config.traffic_per_lane):
+                x = float(rng.uniform(-TRAFFIC_BEHIND, TRAFFIC_AHEAD))
+                body = _car(self.space, TRAFFIC, x, lane * LANE_WIDTH, pymunk.Body.KINEMATIC)
+                body.velocity = (max(0.0, v_mean + float(rng.uniform(*dv))), 0.0)
+                color = TRAFFIC_COLORS[int(rng.integers(len(TRAFFIC_COLORS)))]
+                self.traffic.append((body, lane, color))
+        self.oncoming = [
+            (float(rng.uniform(-TRAFFIC_BEHIND, TRAFFIC_AHEAD)), -int(rng.integers(2, 5)),
+             float(rng.uniform(22.0, 33.0)), TRAFFIC_COLORS[int(rng.integers(len(TRAFFIC_COLORS)))])
+            for _ in range(self.config.traffic_per_lane * 2)
+        ]  # fmt: skip
+
+    def _on_collision(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: object) -> None:
+        self._collided = True
+        arbiter.process_collision = False
+
+    def _recycle_traffic(self) -> None:
+        # Cars that fall out of the window re-enter at its other end, so the host
+        # always has neighbours; the respawn is drawn from the episode's generator.
+        hx = self.host.position.x
+        for body, _lane, _color in self.traffic:
+            dx = body.position.x - hx
+            if dx < -TRAFFIC_BEHIND or dx > TRAFFIC_AHEAD:
+                ahead = dx < -TRAFFIC_BEHIND
+                offset = float(self._rng.uniform(0.8, 1.0)) * (TRAFFIC_AHEAD if ahead else -TRAFFIC_BEHIND)
+                body.position = (hx + offset, body.position.y)
+                self.space.reindex_shapes_for_body(body)
+
+    def step(self, u: float) -> WorldState:
+        """Apply force ``u`` for one control period.
+
+        Raises:
+            ValueError: if ``u`` is not a finite number in [-1, 1].
+            RuntimeError: if the episode is already over or not started.
+        """
+        state = self.state
+        if state is None or state.terminated or state.truncated:
+            raise RuntimeError("step on an episode that is over or not started")
+        a_cmd = accel_of_force(u)
+        cfg = self.config
+        dt = cfg.physics_dt
+        v0_host, v0_lead = state.v_host, state.v_lead
+        host, lead = self.host, self.lead
+        profile = self.v_lead_profile
+        steps = 0
+        for _ in range(cfg.substeps):
+            self.step_index += 1
+            steps += 1
+            v = advance_speed(host.velocity.x, a_cmd, dt)
+            host.velocity = (v, 0.0)
+            lead.velocity = (float(profile[self.step_index]), 0.0)
+            self.space.step(dt)
+            self.odometer += v * dt
+            if self._collided:
+                break
+        self._recycle_traffic()
+        elapsed = steps * dt
+        v_host, v_lead = host.velocity.x, lead.velocity.x
+        self.state = self._state(
+            state.frame + 1,
+            (v_host - v0_host) / elapsed,
+            (v_lead - v0_lead) / elapsed,
+            u,
+            self.step_index * dt,
+        )
+        return self.state
+
+    def _state(self, frame: int, accel: float, a_lead: float, force: float, t: float) -> WorldState:
+        gap = self.lead.position.x - self.host.position.x - CAR_LENGTH
+        collision = self._collided or gap <= 0.0
+        reason = "collision" if collision else "gap" if gap > GAP_LIMIT else ""
+        truncated = not reason and frame >= self.last_frame
+        return WorldState(
+            frame=frame,
+            t=t,
+            v_host=float(self.host.velocity.x),
+            v_lead=float(self.lead.velocity.x),
+            gap=float(gap),
+            accel=float(accel),
+            a_lead=float(a_lead),
+            force=float(force),
+            collision=collision,
+            terminated=bool(reason),
+            truncated=truncated,
+            reason=reason or ("end" if truncated else ""),
+        )
+
+    def scene(self) -> SceneState:
+        """What the camera sees now."""
+        assert self.state is not None
+        hx = self.host.position.x + CAR_LENGTH / 2  # host front bumper
+        lead = CarView(
+            dx=self.state.gap,
+            lane=0,
+            braking=self.state.a_lead < BRAKE_LIGHT_ACCEL,
+            color=(170, 30, 30),
+        )
+        cars = [lead]
+        for body, lane, color in self.traffic:
+            cars.append(CarView(dx=body.position.x - CAR_LENGTH / 2 - hx, lane=lane, color=color))
+        t = self.state.t
+        for x0, lane, v, color in self.oncoming:
+            x = x0 - v * t
+            # Oncoming cars wrap around the host's window as it drives on.
+            dx = (x - hx + TRAFFIC_BEHIND) % (TRAFFIC_AHEAD + TRAFFIC_BEHIND) - TRAFFIC_BEHIND
+            cars.append(CarView(dx=dx, lane=lane, color=color))
+        return SceneState(
+            host_s=self.odometer,
+            cars=tuple(cars),
+            light_azimuth=self.light[0],
+            light_elevation=self.light[1],
+            scenery_seed=int(self.seed) & 0x7FFFFFFF,
+        )
