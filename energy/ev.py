@@ -75,7 +75,8 @@ class EvResult:
     energy_kj_per_mi: float
     """Net battery energy [kJ/mi]."""
     regen_kj_per_mi: float
-    """Energy returned to the battery [kJ/mi], >= 0 (already subtracted in the net)."""
+    """Energy into the battery while it charges (net power < 0) [kJ/mi], >= 0; already
+    subtracted in the net."""
 
     @property
     def energy_wh_per_mi(self) -> float:

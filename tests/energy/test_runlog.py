@@ -1,0 +1,103 @@
+"""Every bad-input error of the run-log reader names the file, the row and the problem."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from energy_log_rows import COLUMNS, make_log_rows
+
+from energy import EnergyError, RunLogError, read_run_log
+
+
+def test_reads_a_good_log_with_extra_columns(write_log: Callable[..., Path]) -> None:
+    rows = make_log_rows(n=11, dt=0.02)
+    for r in rows:
+        r["reward"] = 0.5
+    log = read_run_log(write_log(rows, columns=[*COLUMNS, "reward"]))
+    assert log.t.size == 11 and log.distance_m == pytest.approx(20.0 * 0.2)
+
+
+def _bad(
+    rows: list[dict[str, object]], row: int, key: str, value: object
+) -> list[dict[str, object]]:
+    rows[row - 1][key] = value
+    return rows
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda r: _bad(r, 3, "v_host", "nan"), r"row 3 \(line 4\): column 'v_host' is nan"),
+        (lambda r: _bad(r, 3, "gap", "inf"), r"row 3 \(line 4\): column 'gap' is inf"),
+        (lambda r: _bad(r, 4, "accel", "abc"), r"row 4 \(line 5\): column 'accel' is not a number"),
+        (lambda r: _bad(r, 2, "force", ""), r"row 2 \(line 3\): column 'force' is empty"),
+        (
+            lambda r: _bad(r, 5, "v_host", -0.1),
+            r"row 5 \(line 6\): negative speed in column 'v_host'",
+        ),
+        (
+            lambda r: _bad(r, 5, "v_lead", -3),
+            r"row 5 \(line 6\): negative speed in column 'v_lead'",
+        ),
+        (lambda r: _bad(r, 6, "t", 0.1), r"row 6 \(line 7\): time not strictly increasing"),
+        (lambda r: _bad(r, 3, "t", r[1]["t"]), r"row 3 \(line 4\): time not strictly increasing"),
+        (lambda r: _bad(r, 2, "force", 1.5), r"row 2 \(line 3\): force 1.5 outside \[-1, 1\]"),
+        (lambda r: _bad(r, 2, "collision", 2), r"row 2 \(line 3\): collision must be 0 or 1"),
+        (lambda r: _bad(r, 2, "frame", 1.5), r"row 2 \(line 3\): frame must be an integer"),
+        (
+            lambda r: _bad(r, 7, "gap", -1.0),
+            r"row 7 \(line 8\): negative gap -1.0 m without a collision",
+        ),
+    ],
+)
+def test_bad_value_names_file_row_and_problem(
+    write_log: Callable[..., Path],
+    mutate: Callable[[list[dict[str, object]]], list[dict[str, object]]],
+    match: str,
+) -> None:
+    path = write_log(mutate(make_log_rows()), name="bad_run.csv")
+    with pytest.raises(RunLogError, match=r"bad_run\.csv, " + match) as e:
+        read_run_log(path)
+    assert isinstance(e.value, ValueError) and isinstance(e.value, EnergyError)
+    assert e.value.path == str(path) and e.value.row is not None
+
+
+def test_negative_gap_allowed_on_collision_row(write_log: Callable[..., Path]) -> None:
+    rows = make_log_rows()
+    rows[-1].update(gap=-0.2, collision=1)
+    assert read_run_log(write_log(rows)).collision[-1] == 1
+
+
+def test_missing_column(write_log: Callable[..., Path]) -> None:
+    path = write_log(make_log_rows(), columns=[c for c in COLUMNS if c != "gap"])
+    with pytest.raises(RunLogError, match=r"run\.csv: missing column\(s\) gap"):
+        read_run_log(path)
+
+
+def test_short_row(tmp_path: Path) -> None:
+    p = tmp_path / "short.csv"
+    p.write_text(",".join(COLUMNS) + "\n0,0,1,1,50,0,0,0\n0.1,1,1,1\n")
+    with pytest.raises(RunLogError, match=r"short\.csv, row 2 \(line 3\): column 'gap' is empty"):
+        read_run_log(p)
+
+
+def test_zero_distance(write_log: Callable[..., Path]) -> None:
+    with pytest.raises(
+        RunLogError, match=r"run\.csv: zero distance travelled \(v_host is 0 on all 51 rows\)"
+    ):
+        read_run_log(write_log(make_log_rows(v=0.0)))
+
+
+def test_too_few_rows(write_log: Callable[..., Path]) -> None:
+    with pytest.raises(RunLogError, match="need at least 2 data rows, got 1"):
+        read_run_log(write_log(make_log_rows(n=1)))
+
+
+def test_missing_and_empty_file(tmp_path: Path) -> None:
+    with pytest.raises(RunLogError, match=r"nope\.csv: file not found"):
+        read_run_log(tmp_path / "nope.csv")
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(RunLogError, match=r"empty\.csv: empty file"):
+        read_run_log(tmp_path / "empty.csv")
