@@ -119,15 +119,22 @@ class Session:
             "max_datagram": self.max_datagram,
         }
         deadline = time.monotonic() + self.give_up
+        busy: SessionError | None = None
         while True:
             try:
                 welcome = self._request(hello, lambda r: r["type"] == "welcome" and r["nonce"] == nonce, "hello", deadline)
                 break
-            except SessionError as exc:
-                # BUSY: the world is still held by a vanished client; wait it out.
-                if exc.code != m.ErrorCode.BUSY or time.monotonic() >= deadline:
-                    raise FatalSessionError(f"server {self._where()} refused the session: {exc}", exc.code) from None
-                time.sleep(0.1)
+            except ServerTimeout:
+                if busy is None:
+                    raise
+                exc = busy
+            except SessionError as refused:
+                exc = refused
+            # BUSY: the world may be held by a vanished client; wait for its timeout.
+            if exc.code != m.ErrorCode.BUSY or time.monotonic() >= deadline:
+                raise FatalSessionError(f"server {self._where()} refused the session: {exc}", exc.code) from None
+            busy = exc
+            time.sleep(0.1)
         self.welcome = welcome
         self.token = welcome["session"]
         return welcome

@@ -12,7 +12,7 @@ from protocol.errors import (
     SchemaError,
     VersionError,
 )
-from protocol.fragment import DEFAULT_DATAGRAM, Reassembler, fragment
+from protocol.fragment import DEFAULT_DATAGRAM, Reassembler
 from protocol.messages import PROTOCOL_VERSION, ErrorCode, make, validate
 
 __all__ = [
@@ -29,6 +29,5 @@ __all__ = [
     "decode",
     "make",
     "validate",
-    "fragment",
     "Reassembler",
 ]

@@ -1,0 +1,249 @@
+"""Real server and client processes over 127.0.0.1."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from agent_client.controllers.acc import AccController
+from agent_client.drive import drive_episode
+from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
+from agent_client.launcher import READY_PREFIX, local_server
+from agent_client.runlog import COLUMNS
+from agent_client.session import Session
+from protocol import codec
+from protocol.fragment import HEADER, MAGIC, fragment
+from protocol.messages import ErrorCode
+
+
+def test_acc_drives_test_1_for_four_minutes_without_collision(clean_log, run_vacc):
+    path, result = clean_log
+    rows = list(csv.DictReader(path.open()))
+    assert tuple(rows[0]) == COLUMNS
+    assert len(rows) == 2401
+    assert float(rows[-1]["t"]) == pytest.approx(240.0)
+    assert all(r["collision"] == "0" for r in rows)
+    assert min(float(r["gap"]) for r in rows) > 10.0
+    assert "collision        no" in result.stdout
+
+
+def test_same_seed_gives_identical_logs(clean_log, tmp_path, run_vacc):
+    path, _ = clean_log
+    again = tmp_path / "again.csv"
+    assert run_vacc("drive", "--controller", "acc", "--seed", "0", "--log", str(again), "--quiet").returncode == 0
+    assert again.read_bytes() == path.read_bytes()
+    other = tmp_path / "other.csv"
+    assert run_vacc("drive", "--controller", "acc", "--seed", "1", "--log", str(other), "--quiet").returncode == 0
+    assert other.read_bytes() != path.read_bytes()
+
+
+def test_packet_loss_duplication_and_reordering_give_identical_log(clean_log, tmp_path, run_vacc):
+    path, _ = clean_log
+    lossy = tmp_path / "lossy.csv"
+    faults = "drop=0.1,dup=0.05,reorder=0.05"
+    result = run_vacc(
+        "drive", "--controller", "acc", "--seed", "0", "--log", str(lossy),
+        "--faults", faults + ",seed=11", "--server-faults", faults + ",seed=12",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    resent = int(result.stdout.split("re-sent requests")[1].split()[0])
+    assert resent > 200  # the faults really happened
+    assert "cached_replies=" in result.stderr  # and the server answered repeats from its cache
+    assert lossy.read_bytes() == path.read_bytes()
+
+
+def test_killed_server_makes_client_exit_nonzero_naming_address(tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim_server", "--port", "0", "--realtime"], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith(READY_PREFIX)
+        address = line[len(READY_PREFIX) :].strip()
+        client = subprocess.Popen(
+            [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--server", address, "--give-up", "2", "--log", str(tmp_path / "k.csv")],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        time.sleep(2.0)  # realtime: the run is under way, far from its 240 s end
+        assert client.poll() is None
+        proc.kill()
+        killed = time.monotonic()
+        _, err = client.communicate(timeout=30)
+        elapsed = time.monotonic() - killed
+    finally:
+        proc.kill()
+        proc.wait()
+        proc.stdout.close()
+    assert client.returncode != 0
+    assert address in err and "last frame" in err
+    assert elapsed < 2.0 + 3.0  # give-up time plus process exit
+    rows = (tmp_path / "k.csv").read_text().splitlines()
+    assert len(rows) > 5  # the log so far is kept
+
+
+def test_session_timeout_frees_world_for_a_new_client():
+    with local_server("--session-timeout", "0.5") as addr:
+        ghost = Session(addr)
+        ghost.open()
+        ghost.reset(seed=1)
+        ghost.endpoint.close()  # vanishes without a close message
+        # A second client is refused while the ghost's session is fresh ...
+        with pytest.raises(FatalSessionError, match="BUSY"):
+            with Session(addr, give_up=0.2):
+                pass
+        # ... and served once the session has timed out.
+        time.sleep(0.6)
+        with Session(addr, give_up=3.0) as fresh:
+            obs = fresh.reset(seed=1)
+            assert obs["frame"] == 0
+            assert fresh.step(0.0)["frame"] == 1
+
+
+def _hostile_datagrams(rng: np.random.Generator, n: int) -> list[bytes]:
+    good = codec.encode({"type": "step", "session": b"\x00" * 16, "episode": 0, "frame": 0, "action": 0.0})
+    out = []
+    for i in range(n):
+        kind = i % 6
+        if kind == 0:
+            out.append(rng.bytes(int(rng.integers(1, 200))))  # random bytes
+        elif kind == 1:
+            out.append(fragment(good, i)[0][: int(rng.integers(1, 30))])  # truncated
+        elif kind == 2:
+            out.append(HEADER.pack(MAGIC, 9, 0, i, 0, 1, 3) + b"abc")  # wrong version
+        elif kind == 3:
+            out.append(HEADER.pack(MAGIC, 1, 0, i, 0, 2, 4_000_000) + b"x" * 60000)  # oversized, never completes
+        elif kind == 4:
+            out.append(fragment(b"\x93\x01\x02\x03", i)[0])  # valid msgpack, wrong shape
+        else:
+            out.append(fragment(good, i)[0])  # valid, but a foreign session
+    return out
+
+
+def test_hostile_datagrams_do_not_change_the_run(clean_log, tmp_path):
+    path, _ = clean_log
+    with local_server() as addr:
+        stop = threading.Event()
+        sent = [0]
+        replies = []
+
+        def attack():
+            rng = np.random.default_rng(0)
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.settimeout(0.0)
+            try:
+                deadline = time.monotonic() + 60
+                while not stop.is_set() and time.monotonic() < deadline and sent[0] < 20000:
+                    for d in _hostile_datagrams(rng, 60):
+                        sock.sendto(d, addr)
+                        sent[0] += 1
+                    try:
+                        while True:
+                            replies.append(codec.decode(sock.recv(70000)[16:]))
+                    except (BlockingIOError, ValueError):
+                        pass
+                    time.sleep(0.001)
+            finally:
+                sock.close()
+
+        thread = threading.Thread(target=attack)
+        thread.start()
+        try:
+            log = tmp_path / "attacked.csv"
+            with Session(addr) as session:
+                drive_episode(session, AccController(), scenario="ice", seed=0, trajectory="test-1", log=log)
+        finally:
+            stop.set()
+            thread.join()
+        # The server is still alive and serves a new session.
+        with Session(addr) as session:
+            assert session.reset(seed=0)["frame"] == 0
+    assert sent[0] > 1000
+    assert log.read_bytes() == path.read_bytes()
+    codes = {r["code"] for r in replies if r["type"] == "error"}
+    assert ErrorCode.BAD_VERSION in codes  # wrong-version datagrams get an error reply
+    assert ErrorCode.NO_SESSION in codes  # foreign-session steps are refused
+
+
+def test_recoverable_errors_keep_the_session(server):
+    with Session(server) as s:
+        with pytest.raises(SessionError, match="BAD_RESET"):
+            s.reset(scenario="diesel")
+        s.reset(seed=2, duration=0.3)
+        with pytest.raises(SessionError, match="BAD_ACTION"):
+            s.step(float("nan"))
+        with pytest.raises(SessionError, match="BAD_ACTION"):
+            s.step(1.5)
+        for _ in range(3):
+            obs = s.step(0.0)
+        assert obs["truncated"]
+        with pytest.raises(SessionError, match="EPISODE_OVER"):
+            s.step(0.0)
+        s.heartbeat()
+        assert s.reset(seed=3)["frame"] == 0
+
+
+def test_repeated_step_is_answered_from_cache_not_resimulated(server):
+    with Session(server) as s:
+        s.reset(seed=0)
+        first = s.step(1.0)
+        # Re-send the same step by hand: the reply must be the cached frame 1.
+        msg = {"type": "step", "session": s.token, "episode": s.episode, "frame": 0, "action": -1.0}
+        s.endpoint.send(msg, s.server)
+        got = None
+        while got is None or got.msg is None:
+            got = s.endpoint.receive(2.0)
+        assert got.msg == first
+        assert s.step(0.0)["frame"] == 2
+
+
+def test_trace_trajectory_from_csv(tmp_path, run_vacc):
+    trace = tmp_path / "lead.csv"
+    trace.write_text("t_s,speed_mps\n0,20\n5,22\n10,18\n")
+    log = tmp_path / "t.csv"
+    result = run_vacc("drive", "--controller", "acc", "--scenario", "ev", "--trajectory", str(trace), "--log", str(log))
+    assert result.returncode == 0, result.stderr
+    assert len(log.read_text().splitlines()) == 1 + 101
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--server", "nohost"], "HOST:PORT"),
+        (["--trajectory", "missing.csv"], "cannot read trace"),
+        (["--controller", "warp"], "Invalid value"),
+    ],
+)
+def test_cli_errors_are_clear(tmp_path, args, message, run_vacc):
+    base = {"--controller": "acc", "--log": str(tmp_path / "x.csv")}
+    for i in range(0, len(args), 2):
+        base[args[i]] = args[i + 1]
+    result = run_vacc("drive", *[x for kv in base.items() for x in kv])
+    assert result.returncode != 0
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_serve_refuses_non_loopback_without_flag(run_vacc):
+    result = run_vacc("serve", "--host", "0.0.0.0", "--port", "0", "--max-seconds", "0.1")
+    assert result.returncode != 0 and "--allow-remote" in result.stderr
+
+
+def test_serve_sigterm_prints_stats():
+    proc = subprocess.Popen([sys.executable, "-m", "sim_server", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().startswith(READY_PREFIX)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "stats" in err

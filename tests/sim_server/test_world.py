@@ -1,0 +1,157 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_server import trajectory as T
+from sim_server.errors import ScenarioError, TrajectoryError
+from sim_server.vehicle import accel_of_force, advance_speed
+from sim_server.world import GAP_LIMIT, World, WorldConfig
+
+
+def run(world: World, actions, **reset):
+    states = [world.reset(**reset)]
+    for u in actions:
+        if states[-1].terminated or states[-1].truncated:
+            break
+        states.append(world.step(u))
+    return states
+
+
+def test_force_map():
+    assert accel_of_force(1.0) == pytest.approx(3.5)
+    assert accel_of_force(-1.0) == pytest.approx(-5.5)
+    assert accel_of_force(0.0) == 0.0
+    assert accel_of_force(0.5) == pytest.approx(1.75)
+    for bad in (1.01, -1.5, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            accel_of_force(bad)
+
+
+def test_speed_never_negative():
+    assert advance_speed(0.05, -5.5, 0.02) == 0.0
+    states = run(World(), [-1.0] * 200, scenario="ev", seed=1, trajectory="test-2")
+    assert min(s.v_host for s in states) == 0.0
+    assert all(s.v_host >= 0.0 for s in states)
+
+
+def test_full_throttle_accelerates_at_3_5():
+    w = World()
+    s0 = w.reset("ice", 0, "test-1")
+    s1 = w.step(1.0)
+    assert s1.accel == pytest.approx(3.5)
+    assert s1.v_host - s0.v_host == pytest.approx(3.5 * w.config.control_period)
+    assert s1.t == pytest.approx(0.1)
+
+
+def test_same_seed_same_actions_bit_identical():
+    actions = np.random.default_rng(3).uniform(-1, 1, 300)
+    a = run(World(), actions, scenario="ice", seed=7, trajectory="random")
+    b = run(World(), actions, scenario="ice", seed=7, trajectory="random")
+    assert a == b
+    c = run(World(), actions, scenario="ice", seed=8, trajectory="random")
+    assert a != c
+
+
+def test_salt_changes_the_world():
+    a = World(salt=0).reset("ice", 1, "test-1")
+    b = World(salt=1).reset("ice", 1, "test-1")
+    assert a != b
+
+
+@pytest.mark.parametrize("scenario", ["ice", "ev"])
+def test_initial_conditions_within_table_2(scenario):
+    lim = T.LIMITS[scenario]
+    for seed in range(20):
+        s = World().reset(scenario, seed, "random")
+        assert lim.v0_host[0] <= s.v_host <= lim.v0_host[1]
+        assert lim.gap0[0] <= s.gap <= lim.gap0[1] + 1e-9
+        assert lim.v0_lead[0] <= s.v_lead <= lim.v0_lead[1]
+
+
+def test_collision_is_detected_by_pymunk_and_terminates():
+    w = World()
+    states = run(w, [1.0] * 500, scenario="ice", seed=0, trajectory="test-1")
+    last = states[-1]
+    assert last.collision and last.terminated and last.reason == "collision"
+    assert w._collided  # the pymunk handler fired, not only the gap check
+    assert not states[-2].collision
+
+
+def test_gap_over_limit_terminates():
+    states = run(World(), [-1.0] * 2000, scenario="ice", seed=0, trajectory="test-1")
+    last = states[-1]
+    assert last.terminated and last.reason == "gap" and last.gap > GAP_LIMIT
+    assert not last.collision
+
+
+def test_truncated_at_end_of_trajectory_and_duration():
+    states = run(World(), [0.0] * 100, scenario="ice", seed=0, trajectory="test-1", duration=5.0)
+    assert len(states) == 51
+    assert states[-1].truncated and not states[-1].terminated and states[-1].reason == "end"
+    assert states[-1].t == pytest.approx(5.0)
+    w = World()
+    w.reset("ice", 0, "test-1", duration=0.3)
+    for _ in range(3):
+        w.step(0.0)
+    with pytest.raises(RuntimeError):
+        w.step(0.0)
+
+
+def test_substeps_setting_changes_control_period():
+    w = World(WorldConfig(substeps=1))
+    w.reset("ice", 0, "test-1")
+    assert w.step(0.0).t == pytest.approx(0.02)
+
+
+def test_traffic_faster_left_slower_right():
+    w = World()
+    w.reset("ice", 4, "test-1")
+    for body, lane, _ in w.traffic:
+        if lane < 0:
+            assert body.velocity.x > 30.0
+        else:
+            assert body.velocity.x < 30.0
+    scene = w.scene()
+    assert scene.lead is not None and scene.lead.dx == pytest.approx(w.state.gap)
+    assert {c.lane for c in scene.cars} >= {-1, 0, 1}
+
+
+@pytest.mark.parametrize("scenario", ["ice", "ev"])
+@pytest.mark.parametrize("name", ["test-1", "test-2", "test-3", "test-4", "random"])
+def test_trajectories_respect_table_2(scenario, name):
+    lim = T.LIMITS[scenario]
+    v = T.build(scenario, name, np.random.default_rng(0), 0.02)
+    a = np.diff(v) / 0.02
+    assert len(v) == 12001  # 4 minutes at 50 Hz
+    assert v.min() >= lim.v_min - 1e-9 and v.max() <= lim.v_max + 1e-9
+    assert a.min() >= lim.a_min - 1e-6 and a.max() <= lim.a_max + 1e-6
+
+
+def test_test_trajectories_are_fixed():
+    v1 = T.build("ice", "test-3", np.random.default_rng(0), 0.02)
+    v2 = T.build("ice", "test-3", np.random.default_rng(99), 0.02)
+    np.testing.assert_array_equal(v1, v2)
+    r1 = T.build("ice", "random", np.random.default_rng(0), 0.02)
+    r2 = T.build("ice", "random", np.random.default_rng(1), 0.02)
+    assert not np.array_equal(r1, r2)
+
+
+def test_eq7_matches_the_formula():
+    a, w = T.ICE_TEST_PARAMS["test-1"]
+    t = np.array([0.0, 1.3])
+    expected = 30 + 0.3 * sum(ai * np.sin(2 * wi * t) for ai, wi in zip(a, w))
+    np.testing.assert_allclose(T.eq7_speed(np.array(a, float), np.array(w, float), t), expected)
+
+
+def test_trace_trajectory_and_errors():
+    v = T.build("ev", "trace", np.random.default_rng(0), 0.02, trace=(np.array([0.0, 10.0]), np.array([10.0, 20.0])))
+    assert len(v) == 501 and v[0] == 10.0 and v[-1] == pytest.approx(20.0)
+    with pytest.raises(TrajectoryError, match="not increasing"):
+        T.from_trace(np.array([0.0, 0.0]), np.array([1.0, 1.0]), 0.02, T.LIMITS["ev"])
+    with pytest.raises(TrajectoryError, match="negative"):
+        T.from_trace(np.array([0.0, 1.0]), np.array([1.0, -1.0]), 0.02, T.LIMITS["ev"])
+    with pytest.raises(TrajectoryError, match="unknown trajectory"):
+        T.build("ice", "test-9", np.random.default_rng(0), 0.02)
+    with pytest.raises(ScenarioError):
+        T.build("diesel", "test-1", np.random.default_rng(0), 0.02)
