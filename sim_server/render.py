@@ -1,0 +1,766 @@
+"""Front-camera software raster renderer (numpy + OpenCV, no GPU, no game engine).
+
+A pinhole camera on the host car looks down the road. World frame: ``X`` lateral
+[m] (0 = centre of the host's lane, + right), ``Y`` up [m] (0 = road), ``Z`` along
+the road [m] measured from the camera. A world point maps to pixel coordinates
+(pixel centres at integers, the image centre at ``((W-1)/2, (H-1)/2)``) by::
+
+    z_c = Z cos(pitch) - (Y - h) sin(pitch)
+    u   = c_x + f X / z_c
+    v   = c_y - f ((Y - h) cos(pitch) + Z sin(pitch)) / z_c
+
+with ``f = (W/2) / tan(hfov/2)`` and ``h`` the mount height. The road's vanishing
+point is ``(c_x, c_y - f tan(pitch))``.
+
+How a frame is made (painter's algorithm, far to near):
+
+1. a cached background for the current lane-dash phase bucket: sky gradient,
+   distant hills, grass, both carriageways, median barrier, solid lines, haze, and
+   the dashes at that phase (:data:`PHASE_BUCKETS` per dash period);
+2. ground shadows: trees, buildings and traffic into one binary mask, copied from a
+   darkened copy of the background; the lead car's shadow with anti-aliased edges;
+3. buildings far to near, then trees and cars sorted far to near;
+4. the lead car is drawn 4x supersampled into a premultiplied layer and area-
+   averaged, so its edges have exact sub-pixel coverage; everything else uses
+   ``cv2.LINE_AA`` with 4 fractional bits (1/16 px) per coordinate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from sim_server import scenery as sc
+from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, CarView, SceneState
+
+__all__ = ["CameraConfig", "Renderer"]
+
+SHIFT = 4  # fractional bits of cv2 drawing coordinates (1/16 px)
+ONE = 1 << SHIFT
+AA = cv2.LINE_AA
+PHASE_BUCKETS = 32  # cached backgrounds per dash period (12.19 m / 32 = 0.38 m)
+SHADOW_FACTOR = 0.55  # shadowed ground keeps this fraction of its light
+AMBIENT = 0.5  # share of light on a face turned away from the sun
+DIFFUSE = 0.6  # Lambert term weight
+MIN_SUN_ELEVATION = 0.2  # [rad] caps shadow length at ~5 object heights
+SCENERY_FAR = 350.0  # [m] trees and buildings are drawn up to here
+SHADOW_FAR = 220.0  # [m] scenery shadows beyond this are sub-pixel noise
+LEAD_SUPERSAMPLE = 4  # lead car drawn at up to 4x, then area-averaged
+LEAD_SUPERSAMPLE_MAX = 200  # [px] supersampled layer side cap: k = min(4, 200 // roi)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole camera mounted on the host car.
+
+    The defaults put the horizon on the middle row, show a car at 10 m whole (about
+    87 px wide) and a car at 200 m as a 4 px blob, and make the lead at 55 m about
+    15 px wide (7 px at the network's half resolution).
+
+    Attributes:
+        width: image width [px].
+        height: image height [px].
+        mount_height: camera height above the road [m] (roof-line dash camera).
+        pitch: downward tilt of the optical axis [rad]; 0 = level, horizon mid-image.
+        hfov: horizontal field of view [rad] (45 deg).
+        setback: camera distance behind the host's front bumper [m]; the lead's rear
+            is ``gap + setback`` from the camera.
+        near: near clipping distance [m].
+        far: objects beyond this distance are not drawn [m].
+    """
+
+    width: int = 400  # [px]
+    height: int = 400  # [px]
+    mount_height: float = 1.4  # [m]
+    pitch: float = 0.0  # [rad]
+    hfov: float = math.pi / 4  # [rad]
+    setback: float = 1.5  # [m]
+    near: float = 0.5  # [m]
+    far: float = 450.0  # [m]
+
+    def __post_init__(self) -> None:
+        if self.width < 8 or self.height < 8:
+            raise ValueError(f"image must be at least 8x8 px, got {self.width}x{self.height}")
+        if not 0.05 < self.hfov < 3.0:
+            raise ValueError(f"hfov must be in (0.05, 3.0) rad, got {self.hfov}")
+        if not abs(self.pitch) < 0.5:
+            raise ValueError(f"|pitch| must be below 0.5 rad, got {self.pitch}")
+        if self.mount_height <= 0:
+            raise ValueError(f"mount_height must be positive, got {self.mount_height}")
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length [px] (square pixels): ``(width/2) / tan(hfov/2)``."""
+        return 0.5 * self.width / math.tan(0.5 * self.hfov)
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        """Image centre ``(c_x, c_y)`` [px], pixel centres at integers."""
+        return 0.5 * (self.width - 1), 0.5 * (self.height - 1)
+
+    @property
+    def vanishing_point(self) -> tuple[float, float]:
+        """Where the road's parallel lines meet ``(u, v)`` [px]."""
+        cx, cy = self.principal_point
+        return cx, cy - self.focal_px * math.tan(self.pitch)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project world points to pixel coordinates.
+
+        Args:
+            points: ``(..., 3)`` array of ``(X, Y, Z)`` [m], Z measured from the camera.
+
+        Returns:
+            ``(..., 2)`` float array of ``(u, v)`` [px]. Points with ``Z <= 0`` give
+            meaningless values; callers clip first.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        f = self.focal_px
+        cx, cy = self.principal_point
+        dy = p[..., 1] - self.mount_height
+        zc = p[..., 2] * cp - dy * sp
+        out = np.empty(p.shape[:-1] + (2,))
+        out[..., 0] = cx + f * p[..., 0] / zc
+        out[..., 1] = cy - f * (dy * cp + p[..., 2] * sp) / zc
+        return out
+
+
+# --- car model ----------------------------------------------------------------------
+# Boxes in a car's own frame for the default 4.6 x 1.8 x 1.45 m car, scaled per car.
+# x: +-half width, y: height, z: 0 at the face nearest the camera.
+_W2 = CAR_WIDTH / 2
+_H = CAR_HEIGHT
+_L = CAR_LENGTH
+_BOXES = {  # name: (x0, x1, y0, y1, z0, z1)
+    "under": (-_W2 + 0.1, _W2 - 0.1, 0.0, 0.36, 0.3, _L - 0.3),
+    "body": (-_W2, _W2, 0.30, 0.95, 0.0, _L),
+    "cabin": (-_W2 + 0.1, _W2 - 0.1, 0.95, _H, 0.75, _L - 1.2),
+    "plain": (-_W2, _W2, 0.0, _H, 0.0, _L),  # the whole car as one box (car_detail=False)
+}
+_DECALS_REAR = {  # name: (x0, x1, y0, y1, z) quads on the near faces
+    "window": (-_W2 + 0.2, _W2 - 0.2, 1.0, _H - 0.05, 0.75),
+    "bumper": (-_W2, _W2, 0.30, 0.40, 0.0),
+    "plate": (-0.26, 0.26, 0.44, 0.56, 0.0),
+    "tail_l": (-_W2 + 0.05, -_W2 + 0.40, 0.70, 0.84, 0.0),
+    "tail_r": (_W2 - 0.40, _W2 - 0.05, 0.70, 0.84, 0.0),
+}
+_DECALS_BRAKE = {  # lit lamps bloom a little and the centre brake light comes on
+    "window": _DECALS_REAR["window"],
+    "bumper": _DECALS_REAR["bumper"],
+    "plate": _DECALS_REAR["plate"],
+    "brake_l": (-_W2 + 0.03, -_W2 + 0.44, 0.68, 0.86, 0.0),
+    "brake_r": (_W2 - 0.44, _W2 - 0.03, 0.68, 0.86, 0.0),
+    "brake_c": (-0.22, 0.22, _H - 0.13, _H - 0.07, 0.75),
+}
+_DECALS_FRONT = {
+    "window": (-_W2 + 0.18, _W2 - 0.18, 1.0, _H - 0.04, 1.2),
+    "bumper": (-_W2, _W2, 0.30, 0.40, 0.0),
+    "plate": (-0.26, 0.26, 0.42, 0.52, 0.0),
+    "grille": (-0.45, 0.45, 0.55, 0.72, 0.0),
+    "head_l": (-_W2 + 0.08, -_W2 + 0.45, 0.64, 0.76, 0.0),
+    "head_r": (_W2 - 0.45, _W2 - 0.08, 0.64, 0.76, 0.0),
+}
+# corner index within a box = ix + 2*iy + 4*iz
+_FACE_NEAR = (0, 1, 3, 2)
+_FACE_LEFT = (0, 4, 6, 2)
+_FACE_RIGHT = (1, 5, 7, 3)
+_FACE_TOP = (2, 3, 7, 6)
+
+
+@dataclass(frozen=True)
+class _CarTemplate:
+    """Corner points of a car model and its faces in drawing order.
+
+    ``faces[j] = (role, condition)``: role names the colour; condition is ``None``
+    (always drawn), ``("left", x)`` (drawn when the box's left side ``x`` is right of
+    the camera), ``("right", x)`` or ``("top", y)`` (drawn when the camera is above
+    ``y``). ``index[j]`` holds the 4 point indices of face j.
+    """
+
+    points: np.ndarray  # (N, 3) [m]
+    index: np.ndarray  # (F, 4) int
+    faces: tuple[tuple[str, tuple[str, float] | None], ...]
+
+
+def _make_template(kind: str) -> _CarTemplate:
+    """Build the car model: ``rear``, ``brake`` (rear, braking), ``front``, ``plain``."""
+    oncoming = kind == "front"
+    boxes = ("plain",) if kind == "plain" else ("under", "body", "cabin")
+    decals = {"rear": _DECALS_REAR, "brake": _DECALS_BRAKE, "front": _DECALS_FRONT,
+              "plain": {}}[kind]
+    pts: list[tuple[float, float, float]] = []
+    index: list[list[int]] = []
+    faces: list[tuple[str, tuple[str, float] | None]] = []
+    for name in boxes:
+        x0, x1, y0, y1, z0, z1 = _BOXES[name]
+        if oncoming:  # mirrored: the cabin sits further from the near (front) face
+            z0, z1 = _L - z1, _L - z0
+        o = len(pts)
+        pts += [(x, y, z) for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)]
+        if name == "under":
+            index.append([o + c for c in _FACE_NEAR])
+            faces.append(("under", None))
+            continue
+        for face, role, cond in ((_FACE_LEFT, "left", ("left", x0)),
+                                 (_FACE_RIGHT, "right", ("right", x1)),
+                                 (_FACE_TOP, "top", ("top", y1)),
+                                 (_FACE_NEAR, "near", None)):
+            index.append([o + c for c in face])
+            faces.append((role, cond))
+    for name, (x0, x1, y0, y1, z) in decals.items():
+        o = len(pts)
+        pts += [(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]
+        index.append([o, o + 1, o + 2, o + 3])
+        faces.append((name.split("_")[0], None))
+    return _CarTemplate(np.array(pts, np.float64), np.array(index, np.intp), tuple(faces))
+
+
+_TEMPLATES = {k: _make_template(k) for k in ("rear", "brake", "front", "plain")}
+# fixed colours (RGB) of the parts that are not body paint; lamps are emissive
+_FIXED = {
+    "under": ((28, 28, 30), 0.0),
+    "window": ((40, 48, 60), 0.15),
+    "bumper": ((45, 45, 48), 0.2),
+    "plate": ((225, 225, 215), 0.1),
+    "grille": ((30, 30, 32), 0.0),
+}
+_LAMPS = {"tail": (125, 18, 18), "brake": (255, 45, 35), "head": (245, 240, 215)}
+_HR, _HG, _HB = (float(c) for c in sc.HAZE)
+
+
+def _shade(rgb: tuple[float, ...] | np.ndarray, lam: float, fog: float) -> tuple[float, float, float]:
+    """Lambert shading (ambient + diffuse * max(lam, 0)), then haze; an RGB tuple."""
+    k = AMBIENT + DIFFUSE * (lam if lam > 0.0 else 0.0)
+    g = 1.0 - fog
+    r, gg, b = float(rgb[0]) * k, float(rgb[1]) * k, float(rgb[2]) * k
+    return (min(r, 255.0) * g + _HR * fog, min(gg, 255.0) * g + _HG * fog,
+            min(b, 255.0) * g + _HB * fog)
+
+
+def _emit(rgb: tuple[float, ...], fog: float) -> tuple[float, float, float]:
+    """An emissive colour seen through haze."""
+    g = 1.0 - fog
+    return (rgb[0] * g + _HR * fog, rgb[1] * g + _HG * fog, rgb[2] * g + _HB * fog)
+
+
+def _clip_near(poly: np.ndarray, z_near: float) -> np.ndarray:
+    """Clip a convex polygon ``(N, 3)`` to ``Z >= z_near`` (Sutherland-Hodgman)."""
+    if poly[:, 2].min() >= z_near:
+        return poly
+    out = []
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        ina, inb = a[2] >= z_near, b[2] >= z_near
+        if ina:
+            out.append(a)
+        if ina != inb:
+            t = (z_near - a[2]) / (b[2] - a[2])
+            out.append(a + t * (b - a))
+    return np.array(out) if out else np.zeros((0, 3))
+
+
+def _fix(uv: np.ndarray) -> np.ndarray:
+    """Pixel coordinates to cv2 fixed point (``SHIFT`` fractional bits), int32."""
+    return np.rint(uv * ONE).astype(np.int32)
+
+
+class Renderer:
+    """Renders :class:`~sim_server.scene.SceneState` snapshots to RGB images.
+
+    The renderer caches the static background per lane-dash phase bucket and the
+    scenery of the road ahead; the output depends only on the ``SceneState`` (and
+    the flags below), so the same state always gives identical bytes.
+
+    Args:
+        config: the camera.
+        scenery: draw trees, buildings and distant hills (off only for tests and
+            diagnostics on a plain road).
+        car_detail: draw lights, plates, windows, bumpers and cabins (off gives
+            plain boxes; used to measure apparent widths exactly).
+    """
+
+    def __init__(self, config: CameraConfig | None = None, *, scenery: bool = True,
+                 car_detail: bool = True) -> None:
+        self.config = config or CameraConfig()
+        self.scenery = scenery
+        self.car_detail = car_detail
+        self._bg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._static: dict[int, np.ndarray] = {}
+        self._scenery = sc.SceneryCache()
+        cfg = self.config
+        self._f = cfg.focal_px
+        self._h = cfg.mount_height
+        self._level = cfg.pitch == 0.0  # fast projection path
+        self._cx, self._cy = cfg.principal_point
+        self._c = np.array([self._cx, self._cy])
+        self._horizon = cfg.vanishing_point[1]
+        # smallest ground depth in view: below this the road is under the image
+        self._z_ground_min = max(cfg.near, 0.5)
+
+    # ------------------------------------------------------------------ background
+    def _static_layer(self, seed: int) -> np.ndarray:
+        """Sky, hills, grass, road, median and solid lines (no dashes), hazed."""
+        key = seed if self.scenery else -1
+        if key in self._static:
+            return self._static[key]
+        cfg = self.config
+        W, H = cfg.width, cfg.height
+        f = self._f
+        rows = np.arange(H, dtype=np.float64)
+        elev = np.arctan((self._cy - rows) / f) - cfg.pitch  # [rad] ray elevation per row
+        img = np.empty((H, W, 3), np.float32)
+        t = np.clip(elev / 0.45, 0.0, 1.0)[:, None]
+        sky = sc.SKY_HORIZON * (1 - t) + sc.SKY_TOP * t
+        img[:] = sky[:, None, :]
+        img = img.astype(np.uint8)
+        ground_row0 = int(math.floor(self._horizon))  # first row that may hold ground
+        if self.scenery:
+            prof = sc.hills_profile(seed)
+            n = len(prof)
+            us = np.linspace(-2, W + 2, n)
+            vs = self._horizon - f * np.tan(prof)
+            poly = np.concatenate([np.stack([us, vs], 1), [[W + 2, self._horizon + 1], [-2, self._horizon + 1]]])
+            hill = tuple(float(0.55 * c + 0.45 * h) for c, h in zip(sc.HILLS, sc.HAZE, strict=True))
+            cv2.fillPoly(img, [_fix(poly)], hill, AA, SHIFT)
+        g0 = max(ground_row0, 0)
+        img[g0:] = np.array(sc.GRASS, np.uint8)
+        if ground_row0 >= 0 and ground_row0 < H:  # horizon row: partial coverage of grass
+            a = float(np.clip(ground_row0 + 0.5 - self._horizon, 0.0, 1.0))
+            img[ground_row0] = (img[max(ground_row0 - 1, 0)] * (1 - a) + np.array(sc.GRASS) * a).astype(np.uint8)
+        z0, z1 = self._z_ground_min, 6000.0
+        strips = [
+            (sc.ONCOMING_EDGE_OUT - sc.SHOULDER_OUTER, sc.ONCOMING_EDGE_OUT, sc.SHOULDER),
+            (sc.ONCOMING_EDGE_OUT, sc.ONCOMING_EDGE_IN, sc.ASPHALT),
+            (sc.ONCOMING_EDGE_IN, sc.MEDIAN_R, sc.SHOULDER),
+            (sc.MEDIAN_R, sc.MEDIAN_L, sc.MEDIAN_GRASS),
+            (sc.MEDIAN_L, sc.CARRIAGEWAY_EDGE_L, sc.SHOULDER),
+            (sc.CARRIAGEWAY_EDGE_L, sc.CARRIAGEWAY_EDGE_R, sc.ASPHALT),
+            (sc.CARRIAGEWAY_EDGE_R, sc.CARRIAGEWAY_EDGE_R + sc.SHOULDER_OUTER, sc.SHOULDER),
+            # solid edge lines: yellow next to the median, white outside
+            (sc.CARRIAGEWAY_EDGE_L + 0.1, sc.CARRIAGEWAY_EDGE_L + 0.1 + sc.LINE_WIDTH, sc.YELLOW),
+            (sc.CARRIAGEWAY_EDGE_R - 0.1 - sc.LINE_WIDTH, sc.CARRIAGEWAY_EDGE_R - 0.1, sc.WHITE),
+            (sc.ONCOMING_EDGE_IN - 0.1 - sc.LINE_WIDTH, sc.ONCOMING_EDGE_IN - 0.1, sc.YELLOW),
+            (sc.ONCOMING_EDGE_OUT + 0.1, sc.ONCOMING_EDGE_OUT + 0.1 + sc.LINE_WIDTH, sc.WHITE),
+        ]
+        for x0, x1, col in strips:
+            quad = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]])
+            cv2.fillConvexPoly(img, _fix(cfg.project(quad)), col, AA, SHIFT)
+        # median barrier: the host-facing side and the top
+        bx = sc.BARRIER_X + 0.5 * sc.BARRIER_WIDTH
+        bh = sc.BARRIER_HEIGHT
+        side = np.array([[bx, 0, z0], [bx, bh, z0], [bx, bh, z1], [bx, 0, z1]])
+        top = np.array([[bx - sc.BARRIER_WIDTH, bh, z0], [bx, bh, z0], [bx, bh, z1],
+                        [bx - sc.BARRIER_WIDTH, bh, z1]])
+        cv2.fillConvexPoly(img, _fix(cfg.project(top)), tuple(0.95 * c for c in sc.CONCRETE), AA, SHIFT)
+        cv2.fillConvexPoly(img, _fix(cfg.project(side)), tuple(0.8 * c for c in sc.CONCRETE), AA, SHIFT)
+        # haze: every ground row is at one depth (no roll), so fog per row is exact
+        below = rows - self._horizon
+        with np.errstate(divide="ignore", invalid="ignore"):
+            zrow = np.where(below > 0, self._ground_depth(rows), np.inf)
+        fog = (1.0 - np.exp(-zrow / sc.FOG_DISTANCE)).astype(np.float32)
+        rs = slice(g0, H)
+        blended = img[rs].astype(np.float32) * (1 - fog[rs, None, None]) + sc.HAZE * fog[rs, None, None]
+        img[rs] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
+        self._static[key] = img
+        return img
+
+    def _ground_depth(self, v: np.ndarray) -> np.ndarray:
+        """Depth Z [m] of the road point seen at image row ``v`` (below the horizon)."""
+        cfg = self.config
+        a = np.arctan((v - self._cy) / self._f) + cfg.pitch  # [rad] angle below horizontal
+        return cfg.mount_height / np.tan(a)
+
+    def _background(self, seed: int, bucket: int) -> tuple[np.ndarray, np.ndarray]:
+        """Background and its shadowed twin for one dash-phase bucket (cached)."""
+        key = (seed if self.scenery else -1, bucket)
+        hit = self._bg.get(key)
+        if hit is not None:
+            return hit
+        if len(self._bg) >= 2 * PHASE_BUCKETS:  # a new seed: drop the old one's layers
+            self._bg.clear()
+            self._static.clear()
+        cfg = self.config
+        img = self._static_layer(seed).copy()
+        phase = bucket * sc.DASH_PERIOD / PHASE_BUCKETS  # [m] camera position within a period
+        hw = 0.5 * sc.LINE_WIDTH
+        k0 = 0
+        while True:
+            za = k0 * sc.DASH_PERIOD - phase
+            if za > cfg.far:
+                break
+            zb = za + sc.DASH_LENGTH
+            k0 += 1
+            if zb < self._z_ground_min:
+                continue
+            za = max(za, self._z_ground_min)
+            fog = 1.0 - math.exp(-0.5 * (za + zb) / sc.FOG_DISTANCE)
+            col = tuple(float(c * (1 - fog) + h * fog) for c, h in zip(sc.WHITE, sc.HAZE, strict=True))
+            for x in sc.DASH_X:
+                quad = np.array([[x - hw, 0, za], [x + hw, 0, za], [x + hw, 0, zb], [x - hw, 0, zb]])
+                cv2.fillConvexPoly(img, _fix(cfg.project(quad)), col, AA, SHIFT)
+        dark = cv2.convertScaleAbs(img, alpha=SHADOW_FACTOR)
+        self._bg[key] = (img, dark)
+        return img, dark
+
+    # ---------------------------------------------------------------------- frame
+    def _proj(self, p: np.ndarray) -> np.ndarray:
+        """:meth:`CameraConfig.project` with the constants hoisted (hot path)."""
+        if self._level:
+            z = p[..., 2]
+            out = np.empty(p.shape[:-1] + (2,))
+            np.divide(p[..., 0], z, out=out[..., 0])
+            np.divide(self._h - p[..., 1], z, out=out[..., 1])
+            out *= self._f
+            out += self._c
+            return out
+        return self.config.project(p)
+
+    def render(self, scene: SceneState) -> np.ndarray:
+        """Render one camera frame.
+
+        Args:
+            scene: what is visible now.
+
+        Returns:
+            ``(height, width, 3)`` uint8 RGB image, C-contiguous, owned by the caller.
+
+        Raises:
+            ValueError: a car is in a lane that does not exist.
+        """
+        cfg = self.config
+        s_cam = scene.host_s - cfg.setback  # [m] camera position along the road
+        phase = s_cam % sc.DASH_PERIOD
+        bucket = int(phase / sc.DASH_PERIOD * PHASE_BUCKETS) % PHASE_BUCKETS
+        bg, dark = self._background(scene.scenery_seed, bucket)
+        img = bg.copy()
+
+        el = max(scene.light_elevation, MIN_SUN_ELEVATION)
+        az = scene.light_azimuth
+        light = (math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el))
+        # ground displacement of a shadow per metre of height [m/m]
+        sh = (-math.sin(az) / math.tan(el), -math.cos(az) / math.tan(el))
+
+        lead = scene.lead
+        cars = []
+        for car in scene.cars:
+            oncoming = car.lane <= -2
+            x_c = sc.lane_center_x(car.lane) + car.lateral
+            z_near = car.dx + cfg.setback - (car.length if oncoming else 0.0)
+            if z_near < cfg.near or z_near > cfg.far:
+                continue  # beside or behind the camera: outside the field of view
+            cars.append((z_near, x_c, oncoming, car, car is lead))
+
+        # 1. shadows on the ground (nothing stands on the ground in front of them)
+        shadow_mask = np.zeros((cfg.height, cfg.width), np.uint8)
+        rows = [cfg.height, -1]  # row span touched in the shadow mask
+        trees = blds = None
+        if self.scenery:
+            batch = self._scenery.window(scene.scenery_seed, s_cam, s_cam + SCENERY_FAR)
+            trees, blds = self._scenery_items(batch, s_cam)
+            self._scenery_shadows(shadow_mask, rows, trees, blds, sh)
+        lead_item = None
+        for item in cars:
+            if item[4]:
+                lead_item = item
+                continue
+            poly = self._car_shadow(item, sh)
+            if poly is not None:
+                cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
+                self._span(rows, poly)
+        if rows[1] >= rows[0]:
+            r = slice(max(rows[0], 0), min(rows[1] + 1, cfg.height))
+            cv2.copyTo(dark[r], shadow_mask[r], img[r])
+        if lead_item is not None:
+            self._soft_shadow(img, self._car_shadow(lead_item, sh))
+
+        # 2. buildings (always outside the trees and the road, so never in front)
+        if blds is not None and len(blds[0]):
+            self._draw_buildings(img, blds, light)
+        # 3. trees and cars, far to near
+        order: list[tuple[float, int, int]] = [(c[0], 1, i) for i, c in enumerate(cars)]
+        tree_draw = None
+        if trees is not None and len(trees[0]):
+            tree_draw = self._tree_geometry(trees, light)
+            order += [(z, 0, i) for i, z in enumerate(trees[0].tolist())]
+        order.sort(key=lambda t: (-t[0], t[1], t[2]))
+        for _, kind, i in order:
+            if kind == 0:
+                self._draw_tree(img, tree_draw, i)
+            elif cars[i][4]:
+                self._draw_lead(img, cars[i], light)
+            else:
+                self._draw_car(img, cars[i], light)
+        return img
+
+    @staticmethod
+    def _span(rows: list[int], poly: np.ndarray) -> None:
+        ys = poly[:, 1]
+        rows[0] = min(rows[0], int(ys.min()) >> SHIFT)
+        rows[1] = max(rows[1], (int(ys.max()) >> SHIFT) + 1)
+
+    # ------------------------------------------------------------------- shadows
+    def _ground_poly(self, pts_xz: np.ndarray) -> np.ndarray | None:
+        """Convex hull of ground points ``(N, 2)`` (X, Z), near-clipped, in fixed point."""
+        hull = cv2.convexHull(pts_xz.astype(np.float32))[:, 0, :].astype(np.float64)
+        p3 = np.zeros((len(hull), 3))
+        p3[:, 0] = hull[:, 0]
+        p3[:, 2] = hull[:, 1]
+        p3 = _clip_near(p3, self._z_ground_min)
+        if len(p3) < 3:
+            return None
+        return _fix(self._proj(p3))
+
+    def _car_shadow(self, item: tuple, sh: tuple[float, float]) -> np.ndarray | None:
+        """Ground shadow polygon of a car's box (fixed point), or None if out of view."""
+        z_near, x_c, _, car, _ = item
+        w2 = 0.5 * car.width
+        hgt = 0.92 * car.height  # the cabin is narrower than the footprint
+        xs = np.array([x_c - w2, x_c + w2, x_c + w2, x_c - w2])
+        zs = np.array([z_near, z_near, z_near + car.length, z_near + car.length])
+        pts = np.empty((8, 2))
+        pts[:4, 0], pts[:4, 1] = xs, zs
+        pts[4:, 0], pts[4:, 1] = xs + sh[0] * hgt, zs + sh[1] * hgt
+        return self._ground_poly(pts)
+
+    def _soft_shadow(self, img: np.ndarray, poly: np.ndarray | None) -> None:
+        """Darken the ground under ``poly`` with anti-aliased edges (the lead car's)."""
+        if poly is None:
+            return
+        H, W = img.shape[:2]
+        x0 = max((int(poly[:, 0].min()) >> SHIFT) - 1, 0)
+        x1 = min((int(poly[:, 0].max()) >> SHIFT) + 2, W)
+        y0 = max((int(poly[:, 1].min()) >> SHIFT) - 1, 0)
+        y1 = min((int(poly[:, 1].max()) >> SHIFT) + 2, H)
+        if x1 <= x0 or y1 <= y0:
+            return
+        m = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        off = np.array([x0 << SHIFT, y0 << SHIFT], np.int32)
+        cv2.fillConvexPoly(m, poly - off, 255, AA, SHIFT)
+        fac = cv2.convertScaleAbs(m, alpha=-(1 - SHADOW_FACTOR), beta=255)
+        roi = img[y0:y1, x0:x1]
+        cv2.multiply(roi, cv2.cvtColor(fac, cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
+
+    def _scenery_items(self, b: sc.SceneryBatch, s_cam: float) -> tuple[tuple, tuple]:
+        """Visible trees and buildings, each sorted far to near, with depths [m]."""
+        zt = b.tree_s - s_cam
+        idx = np.nonzero((zt > 4.0) & (zt < SCENERY_FAR))[0]
+        idx = idx[np.argsort(-zt[idx], kind="stable")]
+        trees = (zt[idx], b.tree_x[idx], b.tree_h[idx], b.tree_r[idx], b.tree_rgb[idx])
+        zb = b.bld_s - s_cam
+        idx = np.nonzero((zb + b.bld_len > 4.0) & (zb < SCENERY_FAR))[0]
+        idx = idx[np.argsort(-zb[idx], kind="stable")]
+        blds = (zb[idx], b.bld_x[idx], b.bld_len[idx], b.bld_depth[idx], b.bld_h[idx], b.bld_rgb[idx])
+        return trees, blds
+
+    def _scenery_shadows(self, mask: np.ndarray, rows: list[int], trees: tuple, blds: tuple,
+                         sh: tuple[float, float]) -> None:
+        z, x, th, r = trees[0], trees[1], trees[2], trees[3]
+        yc = th + 0.8 * r  # [m] crown centre height
+        gx = x + sh[0] * yc
+        gz = z + sh[1] * yc
+        keep = (z < SHADOW_FAR) & (gz - r > self._z_ground_min)
+        if keep.any():
+            n = int(keep.sum())
+            p = np.zeros((n, 6, 3))
+            p[:, :, 0] = gx[keep, None] + r[keep, None] * _HEX_COS
+            p[:, :, 2] = gz[keep, None] + r[keep, None] * _HEX_SIN
+            fx = _fix(self._proj(p))
+            for poly in fx:
+                cv2.fillConvexPoly(mask, poly, 255, cv2.LINE_8, SHIFT)
+            rows[0] = min(rows[0], int(fx[:, :, 1].min()) >> SHIFT)
+            rows[1] = max(rows[1], (int(fx[:, :, 1].max()) >> SHIFT) + 1)
+        zb, xb, ln, dp, hb = blds[0], blds[1], blds[2], blds[3], blds[4]
+        for i in range(len(zb)):
+            if zb[i] > SHADOW_FAR:
+                continue
+            side = 1.0 if xb[i] > 0 else -1.0
+            xs = np.array([xb[i], xb[i] + side * dp[i], xb[i] + side * dp[i], xb[i]])
+            zs = np.array([zb[i], zb[i], zb[i] + ln[i], zb[i] + ln[i]])
+            pts = np.concatenate([np.stack([xs, zs], 1),
+                                  np.stack([xs + sh[0] * hb[i], zs + sh[1] * hb[i]], 1)])
+            poly = self._ground_poly(pts)
+            if poly is not None:
+                cv2.fillConvexPoly(mask, poly, 255, cv2.LINE_8, SHIFT)
+                self._span(rows, poly)
+
+    # ------------------------------------------------------------------- objects
+    def _draw_buildings(self, img: np.ndarray, blds: tuple, light: tuple) -> None:
+        zb, xb, ln, dp, hb, rgb = blds
+        n = len(zb)
+        side = np.where(xb > 0, 1.0, -1.0)
+        z0 = np.maximum(zb, self._z_ground_min)
+        z1 = zb + ln
+        x1 = xb + side * dp
+        p = np.zeros((n, 8 + 4 * _WINDOW_FLOORS, 3))
+        p[:, 0:4, 0] = np.stack([xb, x1, x1, xb], 1)
+        p[:, 0:4, 1] = np.stack([0 * hb, 0 * hb, hb, hb], 1)
+        p[:, 0:4, 2] = z0[:, None]
+        p[:, 4:8, 0] = xb[:, None]
+        p[:, 4:8, 1] = np.stack([0 * hb, 0 * hb, hb, hb], 1)
+        p[:, 4:8, 2] = np.stack([z0, z1, z1, z0], 1)
+        for k in range(_WINDOW_FLOORS):
+            q = slice(8 + 4 * k, 12 + 4 * k)
+            p[:, q, 0] = xb[:, None]
+            p[:, q, 1] = np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k
+            p[:, q, 2] = np.stack([z0 + 1.0, z1 - 1.0, z1 - 1.0, z0 + 1.0], 1)
+        fx = _fix(self._proj(p))
+        fog = 1.0 - np.exp(-z0 / sc.FOG_DISTANCE)
+        for i in range(n):
+            c_road = _shade(rgb[i], -side[i] * light[0], fog[i])
+            if zb[i] >= self._z_ground_min:
+                cv2.fillConvexPoly(img, fx[i, 0:4], _shade(rgb[i], -light[2], fog[i]), AA, SHIFT)
+            cv2.fillConvexPoly(img, fx[i, 4:8], c_road, AA, SHIFT)
+            if z0[i] < 160.0:  # window bands on the road-facing wall
+                win = (0.45 * c_road[0], 0.45 * c_road[1], 0.45 * c_road[2])
+                for k in range(min(int(hb[i] // 3.5), _WINDOW_FLOORS)):
+                    cv2.fillConvexPoly(img, fx[i, 8 + 4 * k:12 + 4 * k], win, AA, SHIFT)
+
+    def _tree_geometry(self, trees: tuple, light: tuple) -> tuple:
+        """Fixed-point trunk quads, crown centres/radii and colours of all trees."""
+        z, x, th, r, rgb = trees
+        n = len(z)
+        yc = th + 0.8 * r
+        p = np.empty((n, 6, 3))
+        p[:, 0:4, 0] = x[:, None] + np.array([-0.18, 0.18, 0.18, -0.18])
+        p[:, 0:4, 1] = np.stack([0 * yc, 0 * yc, yc, yc], 1)
+        p[:, :, 2] = z[:, None]
+        p[:, 4, 0] = x
+        p[:, 4, 1] = yc
+        p[:, 5, 0] = x + 0.35 * r * np.clip(2 * light[0], -1, 1)  # sunlit side of the crown
+        p[:, 5, 1] = yc + 0.3 * r
+        fx = _fix(self._proj(p))
+        rad = (self._f * r / z * ONE).astype(np.int64)
+        fog = (1.0 - np.exp(-z / sc.FOG_DISTANCE))[:, None]
+        k_crown = AMBIENT + DIFFUSE * 0.1
+        k_lit = AMBIENT + DIFFUSE * (max(0.0, 0.35 - 0.65 * light[2]) + 0.3 * light[1] + 0.3)
+        haze = sc.HAZE[None, :]
+        crown = (np.minimum(rgb * k_crown, 255) * (1 - fog) + haze * fog).tolist()
+        lit = (np.minimum(rgb * k_lit, 255) * (1 - fog) + haze * fog).tolist()
+        trunk = (np.array([[95 * 0.62, 70 * 0.62, 45 * 0.62]]) * (1 - fog) + haze * fog).tolist()
+        return fx, rad.tolist(), crown, lit, trunk
+
+    @staticmethod
+    def _draw_tree(img: np.ndarray, geo: tuple, i: int) -> None:
+        fx, rad, crown, lit, trunk = geo
+        cv2.fillConvexPoly(img, fx[i, 0:4], trunk[i], AA, SHIFT)
+        c = fx[i, 4]
+        cv2.circle(img, (int(c[0]), int(c[1])), rad[i], crown[i], -1, AA, SHIFT)
+        if rad[i] > 2.5 * ONE:
+            c = fx[i, 5]
+            cv2.circle(img, (int(c[0]), int(c[1])), int(0.6 * rad[i]), lit[i], -1, AA, SHIFT)
+
+    def _car_draw_list(self, item: tuple, light: tuple) -> tuple[np.ndarray, list]:
+        """World points of a car and its visible faces as ``(index_row, colour)``."""
+        z_near, x_c, oncoming, car, _ = item
+        if not self.car_detail:
+            tpl = _TEMPLATES["plain"]
+        elif oncoming:
+            tpl = _TEMPLATES["front"]
+        else:
+            tpl = _TEMPLATES["brake" if car.braking else "rear"]
+        sx, sy = car.width / CAR_WIDTH, car.height / CAR_HEIGHT
+        p = tpl.points * (sx, sy, car.length / CAR_LENGTH)
+        p += (x_c, 0.0, z_near)
+        fog = 1.0 - math.exp(-z_near / sc.FOG_DISTANCE)
+        body = car.color
+        h = self._h
+        cols: dict[str, tuple[float, float, float]] = {}
+        out = []
+        for j, (role, cond) in enumerate(tpl.faces):
+            if cond is not None:
+                what, v = cond
+                if what == "left" and not x_c + v * sx > 0:
+                    continue
+                if what == "right" and not x_c + v * sx < 0:
+                    continue
+                if what == "top" and not v * sy < h:
+                    continue
+            col = cols.get(role)
+            if col is None:
+                if role == "near":
+                    col = _shade(body, -light[2], fog)
+                elif role == "top":
+                    col = _shade(body, light[1], fog)
+                elif role == "left":
+                    col = _shade(body, -light[0], fog)
+                elif role == "right":
+                    col = _shade(body, light[0], fog)
+                elif role in _LAMPS:
+                    col = _emit(_LAMPS[role], fog)
+                else:
+                    base, lam = _FIXED[role]
+                    if role == "window" and oncoming:
+                        base = (60, 72, 88)
+                    col = _shade(base, lam, fog)
+                cols[role] = col
+            out.append((j, col))
+        return p, out
+
+    def _draw_car(self, img: np.ndarray, item: tuple, light: tuple, k: float = 1.0,
+                  origin: tuple[float, float] = (0.0, 0.0), alpha: np.ndarray | None = None) -> None:
+        """Draw a car; ``k``/``origin`` map pixel coordinates into a supersampled layer."""
+        p, faces = self._car_draw_list(item, light)
+        uv = self._proj(p)
+        if k != 1.0:
+            uv -= origin
+            uv += 0.5
+            uv *= k
+            uv -= 0.5
+        tpl_index = self._index_of(item)
+        fq = _fix(uv)[tpl_index]  # (F, 4, 2)
+        for j, col in faces:
+            cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
+            if alpha is not None:
+                cv2.fillConvexPoly(alpha, fq[j], 255, AA, SHIFT)
+
+    def _index_of(self, item: tuple) -> np.ndarray:
+        car = item[3]
+        if not self.car_detail:
+            return _TEMPLATES["plain"].index
+        if item[2]:
+            return _TEMPLATES["front"].index
+        return _TEMPLATES["brake" if car.braking else "rear"].index
+
+    def _draw_lead(self, img: np.ndarray, item: tuple, light: tuple) -> None:
+        """Draw the lead car supersampled, composited with premultiplied alpha.
+
+        The car is drawn at ``k`` times the resolution into a black colour layer and
+        a coverage layer, both area-averaged back: the colour layer is then the
+        premultiplied colour and the coverage the exact box-filtered alpha, so edges
+        move smoothly with sub-pixel changes of the gap.
+        """
+        z_near, x_c, _, car, _ = item
+        w2 = 0.5 * car.width + 0.05  # braking lamps bloom slightly outside the body
+        zs = (z_near, z_near + car.length)
+        box = np.array([[x, y, z] for x in (x_c - w2, x_c + w2) for y in (0.0, car.height) for z in zs])
+        uv = self._proj(box)
+        W, H = self.config.width, self.config.height
+        x0 = max(int(math.floor(uv[:, 0].min())) - 1, 0)
+        x1 = min(int(math.ceil(uv[:, 0].max())) + 2, W)
+        y0 = max(int(math.floor(uv[:, 1].min())) - 1, 0)
+        y1 = min(int(math.ceil(uv[:, 1].max())) + 2, H)
+        if x1 <= x0 or y1 <= y0:
+            return
+        w, h = x1 - x0, y1 - y0
+        k = min(LEAD_SUPERSAMPLE, LEAD_SUPERSAMPLE_MAX // max(w, h))
+        if k <= 1:  # near and large: plain anti-aliasing is already smooth enough
+            self._draw_car(img, item, light)
+            return
+        layer = np.zeros((h * k, w * k, 3), np.uint8)
+        alpha = np.zeros((h * k, w * k), np.uint8)
+        self._draw_car(layer, item, light, float(k), (float(x0), float(y0)), alpha)
+        col = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA)
+        a = cv2.resize(alpha, (w, h), interpolation=cv2.INTER_AREA)
+        roi = img[y0:y1, x0:x1]
+        cv2.multiply(roi, cv2.cvtColor(cv2.bitwise_not(a), cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
+        cv2.add(roi, col, dst=roi)
+
+
+_HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
+_HEX_SIN = np.sin(np.linspace(0, 2 * np.pi, 7)[:-1])
+_WINDOW_FLOORS = 5  # at most this many window bands per building
