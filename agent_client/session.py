@@ -88,6 +88,7 @@ class Session:
         self.frame = -1
         self.resends = 0  # requests re-sent after a timeout
         self._srtt: float | None = None  # [s] smoothed round trip of unrepeated requests
+        self._rttvar = 0.0  # [s] its mean deviation
         self._closed = False
         self._heartbeat_seq = 0
 
@@ -256,7 +257,7 @@ class Session:
         sent_at = now
         # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
         # requests answered without a re-send update the estimate).
-        wait = self.retry_initial if self._srtt is None else min(self.retry_max, max(RETRY_MIN, 4.0 * self._srtt))
+        wait = self.retry_initial if self._srtt is None else min(self.retry_max, max(RETRY_MIN, self._srtt + 4.0 * self._rttvar))
         resent = False
         resend_at = now + wait
         while True:
@@ -267,7 +268,11 @@ class Session:
                 if accept(reply):
                     if not resent:
                         rtt = now - sent_at
-                        self._srtt = rtt if self._srtt is None else 0.875 * self._srtt + 0.125 * rtt
+                        if self._srtt is None:
+                            self._srtt, self._rttvar = rtt, rtt / 2
+                        else:  # RFC 6298 gains
+                            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - rtt)
+                            self._srtt = 0.875 * self._srtt + 0.125 * rtt
                     return reply
                 if reply["type"] == "error" and error_match(reply):
                     text = f"server {self._where()}: {reply['name']}: {reply['detail']}"

@@ -21,7 +21,7 @@ from energy import cmem, ev, units
 from energy.runlog import RunLog, read_run_log
 
 DESIRED_GAP_M = 55.0  # [m] the paper's desired gap; gap RMSE is taken against it
-TIME_GAP_S = 1.5  # [s] default t_gap of the ACC's reference d_ref = max(v t_gap, d_safe)
+TIME_GAP_S = 1.8  # [s] default t_gap of d_ref = max(v t_gap, d_safe): the shipped ACC's
 D_SAFE_M = 5.0  # [m] default d_safe of the same reference
 TTC_THRESHOLD_S = 4.0  # [s] a common critical time-to-collision
 HEADWAY_MIN_SPEED_MPS = 0.5  # [m/s] below this, time headway is not defined (standstill)

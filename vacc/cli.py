@@ -23,3 +23,9 @@ main.add_command(serve)
 main.add_command(drive)
 from vacc.metrics_cmd import metrics  # noqa: E402
 main.add_command(metrics)
+from vacc.bench import bench  # noqa: E402
+
+main.add_command(bench)
+from vacc.demo import demo  # noqa: E402
+
+main.add_command(demo)

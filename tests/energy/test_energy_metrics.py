@@ -33,7 +33,7 @@ def _log(**cols: np.ndarray) -> RunLog:
 def test_gap_rmse_both_references(write_log: Callable[..., Path]) -> None:
     m = evaluate_run(write_log(make_log_rows(v=20.0, gap=50.0)), "corolla")
     assert m["gap_rmse_55m_m"] == pytest.approx(5.0)
-    assert m["gap_rmse_time_gap_m"] == pytest.approx(50.0 - 1.5 * 20.0)
+    assert m["gap_rmse_time_gap_m"] == pytest.approx(50.0 - 1.8 * 20.0)
     m = evaluate_run(
         write_log(make_log_rows(v=2.0, gap=50.0)), "corolla", time_gap_s=2.0, d_safe_m=10.0
     )

@@ -1,0 +1,200 @@
+"""`vacc bench`: speed figures, each measured beside its peer in the same run.
+
+The machine is shared and noisy, so absolute times mean little: each figure is the
+median of several repetitions after a warm-up, with its spread, next to a peer
+measured moments before (a raw UDP echo for the lockstep round trip).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from agent_client.launcher import local_server
+from agent_client.session import Session
+
+ECHO_SERVER = """
+import socket, sys
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.bind(("127.0.0.1", 0))
+print(s.getsockname()[1], flush=True)
+while True:
+    data, addr = s.recvfrom(70000)
+    if data == b"quit":
+        break
+    s.sendto(data, addr)
+"""
+
+
+def _summary(samples: list[float]) -> dict[str, float]:
+    a = np.asarray(samples)
+    return {"median": float(np.median(a)), "p99": float(np.percentile(a, 99)), "min": float(a.min()), "max": float(a.max())}
+
+
+def _reps(values: list[float]) -> dict[str, float]:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "reps": len(values)}
+
+
+def udp_echo(steps: int, reps: int, payload: int = 64) -> dict[str, Any]:
+    """Round trips/s and RTT of a bare Python UDP echo process on loopback."""
+    proc = subprocess.Popen([sys.executable, "-c", ECHO_SERVER], stdout=subprocess.PIPE, text=True)
+    try:
+        port = int(proc.stdout.readline())
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.connect(("127.0.0.1", port))
+        data = b"x" * payload
+        rates, rtts = [], []
+        for rep in range(reps + 1):
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                t = time.perf_counter()
+                sock.send(data)
+                sock.recv(70000)
+                rtts.append(time.perf_counter() - t)
+            if rep:  # the first repetition is the warm-up
+                rates.append(steps / (time.perf_counter() - t0))
+        sock.send(b"quit")
+        sock.close()
+    finally:
+        proc.wait(timeout=5)
+        proc.stdout.close()
+    return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}}
+
+
+def lockstep(steps: int, reps: int, image_format: str = "none", size: tuple[int, int] = (400, 400)) -> dict[str, Any]:
+    """Lockstep steps/s and per-step round trip with a real server process."""
+    rates, rtts = [], []
+    with local_server() as addr, Session(addr, image_format=image_format, image_size=size) as s:
+        for rep in range(reps + 1):
+            s.reset(seed=rep, trajectory="random")
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                t = time.perf_counter()
+                obs = s.step(0.0)
+                rtts.append(time.perf_counter() - t)
+                if obs["truncated"] or obs["terminated"]:
+                    s.reset(seed=rep + 100, trajectory="random")
+            if rep:
+                rates.append(steps / (time.perf_counter() - t0))
+        nbytes = len(obs["image"]) if obs["image"] is not None else 0
+    return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}, "image_bytes": nbytes}
+
+
+def render_time(frames: int, size: tuple[int, int] = (400, 400)) -> dict[str, Any]:
+    """Median and p99 time to render one RGB frame in this process (one core)."""
+    from sim_server.render import CameraConfig, Renderer
+    from sim_server.world import World
+
+    world = World()
+    world.reset("ice", 0, "test-1")
+    renderer = Renderer(CameraConfig(width=size[0], height=size[1]))
+    scenes = []
+    for _ in range(64):
+        world.step(0.1)
+        scenes.append(world.scene())
+    for scene in scenes:  # warm-up: fills the background caches
+        renderer.render(scene)
+    times = []
+    for i in range(frames):
+        t = time.perf_counter()
+        renderer.render(scenes[i % len(scenes)])
+        times.append(time.perf_counter() - t)
+    return {"ms": {k: v * 1e3 for k, v in _summary(times).items()}}
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("numpy", "torch", "opencv-python-headless", "pymunk", "msgpack", "gymnasium"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def run_bench(quick: bool) -> dict[str, Any]:
+    steps, reps = (500, 3) if quick else (3000, 5)
+    rows: dict[str, Any] = {}
+    with click.progressbar(length=5, label="bench", file=sys.stderr) as bar:
+        rows["udp_echo"] = udp_echo(steps, reps)
+        bar.update(1)
+        rows["lockstep_no_image"] = lockstep(steps, reps)
+        bar.update(1)
+        rows["lockstep_rgb400"] = lockstep(max(50, steps // 10), reps, "rgb", (400, 400))
+        bar.update(1)
+        rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
+        bar.update(1)
+        rows["render_rgb400"] = render_time(200 if quick else 1000)
+        bar.update(1)
+    echo = rows["udp_echo"]["steps_per_s"]["median"]
+    rows["lockstep_no_image"]["pct_of_echo"] = 100.0 * rows["lockstep_no_image"]["steps_per_s"]["median"] / echo
+    return {
+        "header": {
+            "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "cpu": _cpu(),
+            "cores": os.cpu_count(),
+            "quick": quick,
+            "versions": _versions(),
+        },
+        "figures": rows,
+    }
+
+
+def format_table(result: dict[str, Any]) -> str:
+    f = result["figures"]
+    h = result["header"]
+    lines = [
+        f"vacc bench  {h['date']}  {h['cpu']} x{h['cores']}  {'quick' if h['quick'] else 'full'}",
+        "  " + ", ".join(f"{k} {v}" for k, v in h["versions"].items()),
+        "",
+        f"{'figure':34} {'median':>12} {'min..max / p99':>22}  goal",
+    ]
+
+    def rate(name: str, label: str, goal: str) -> None:
+        r = f[name]["steps_per_s"]
+        lines.append(f"{label:34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  {goal}")
+        t = f[name]["rtt_us"]
+        lines.append(f"{'  round trip':34} {t['median']:>9.1f} us {'p99 ' + format(t['p99'], '.1f'):>22}")
+
+    rate("udp_echo", "raw UDP echo (peer)", "physical limit")
+    rate("lockstep_no_image", "lockstep, no image", f">= 5000/s ({f['lockstep_no_image']['pct_of_echo']:.0f}% of echo)")
+    rate("lockstep_rgb400", "lockstep, 400x400 RGB (480 KB)", "")
+    rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
+    r = f["render_rgb400"]["ms"]
+    lines.append(f"{'render 400x400 RGB':34} {r['median']:>9.3f} ms {'p99 ' + format(r['p99'], '.3f'):>22}  <= 0.5 ms (max 1 ms)")
+    return "\n".join(lines)
+
+
+@click.command("bench")
+@click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Also write the figures as JSON.")
+@click.option("--quick", is_flag=True, help="Fewer repetitions (under 2 minutes), for CI smoke.")
+def bench(json_path: str | None, quick: bool) -> None:
+    """Measure lockstep, rendering and echo figures side by side."""
+    result = run_bench(quick)
+    click.echo(format_table(result))
+    if json_path:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        Path(json_path).write_text(json.dumps(result, indent=2))
+        click.echo(f"wrote {json_path}")
