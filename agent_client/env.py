@@ -1,0 +1,157 @@
+"""Gymnasium environment over a real UDP session with the simulator server.
+
+Registered as ``vacc/VisionACC-v0``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import deque
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from agent_client import preprocess as pre
+from agent_client.launcher import local_server
+from agent_client.rewards import REWARDS
+from agent_client.session import GIVE_UP, Session
+
+__all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
+
+N_ACTIONS = 21
+FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of each action: -1.0, -0.9, ..., 1.0
+MAX_SPEED = 60.0  # [m/s] upper bound of the speed observation
+AGENT_IMAGE = (200, 200)  # [px] asked of the server: the paper's x0.5 of 400x400, rendered natively
+
+
+class VisionACCEnv(gym.Env):
+    """Follow a lead car from a front camera, over a UDP lockstep session.
+
+    ## Action space
+    ``Discrete(21)``: action ``a`` applies the normalised force ``u = -1 + 0.1 a``
+    for one control period (0.1 s by default); u = -1 brakes at 5.5 m/s², u = +1
+    accelerates at 3.5 m/s².
+
+    ## Observation space
+    ``Dict(frames=Box(0, 255, (8, 105, 150), uint8), speeds=Box(0, 60, (8,), float32))``:
+    the last 8 preprocessed camera frames (oldest first, ``stack_stride`` control
+    steps apart) and the host speeds [m/s] at those frames. The gap, the lead's
+    speed and every other privileged quantity are never in the observation; they
+    are in ``info`` for logging and feed only the reward.
+
+    ## Rewards
+    Table 1 of the paper (:mod:`agent_client.rewards`): ``reward="gap"`` or
+    ``"force"``, normalised to [-1, 1].
+
+    ## Starting state
+    Table 2 of the paper for the scenario: initial host speed and gap drawn from the
+    episode seed; the lead follows the chosen trajectory.
+
+    ## Episode end
+    Terminated on a collision or a gap over 300 m; truncated at the end of the
+    trajectory (240 s) or ``episode_seconds``.
+
+    ## Arguments
+    ``server``: (host, port) of a running server, or None to spawn one (reaped on
+    ``close``). ``scenario``: "ice" | "ev". ``trajectory``: "random" (a new one each
+    episode) or "test-1".."test-4". ``frame_stack``, ``stack_stride``: the stack.
+
+    ## Version history
+    * v0: first version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        server: tuple[str, int] | None = None,
+        *,
+        scenario: str = "ice",
+        trajectory: str = "random",
+        reward: str = "gap",
+        frame_stack: int = 8,
+        stack_stride: int = 1,
+        episode_seconds: float | None = None,
+        render_mode: str | None = None,
+        give_up: float = GIVE_UP,
+        server_args: tuple[str, ...] = (),
+    ):
+        if reward not in REWARDS:
+            raise ValueError(f"reward {reward!r} is not one of {sorted(REWARDS)}")
+        if frame_stack < 1 or stack_stride < 1:
+            raise ValueError("frame_stack and stack_stride must be >= 1")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode {render_mode!r} is not one of {self.metadata['render_modes']}")
+        self.scenario, self.trajectory = scenario, trajectory
+        self.reward_fn = REWARDS[reward]
+        self.frame_stack, self.stack_stride = frame_stack, stack_stride
+        self.episode_seconds = episode_seconds
+        self.render_mode = render_mode
+        self.action_space = spaces.Discrete(N_ACTIONS)
+        self.observation_space = spaces.Dict(
+            {
+                "frames": spaces.Box(0, 255, (frame_stack, pre.FRAME_H, pre.FRAME_W), np.uint8),
+                "speeds": spaces.Box(0.0, MAX_SPEED, (frame_stack,), np.float32),
+            }
+        )
+        self._stack = contextlib.ExitStack()
+        addr = server if server is not None else self._stack.enter_context(local_server(*server_args))
+        self.session = self._stack.enter_context(
+            Session(addr, image_format="gray", image_size=AGENT_IMAGE, give_up=give_up, client_name="vacc-env")
+        )
+        self._history: deque[tuple[np.ndarray, float]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
+        self._last_image: np.ndarray | None = None
+
+    def _observe(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
+        image = Session.image(obs)
+        self._last_image = image
+        self._history.append((pre.preprocess(image), obs["v_host"]))
+        picks = list(self._history)[::-1][:: self.stack_stride][::-1]
+        while len(picks) < self.frame_stack:  # episode start: repeat the first frame
+            picks.insert(0, picks[0])
+        return {
+            "frames": np.stack([f for f, _ in picks]),
+            "speeds": np.array([min(v, MAX_SPEED) for _, v in picks], dtype=np.float32),
+        }
+
+    @staticmethod
+    def _info(obs: dict[str, Any]) -> dict[str, Any]:
+        keys = ("t", "frame", "gap", "v_host", "v_lead", "accel", "force", "collision", "reason")
+        return {k: obs[k] for k in keys}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        episode_seed = int(options.get("seed", self.np_random.integers(2**31)))
+        obs = self.session.reset(
+            scenario=self.scenario,
+            seed=episode_seed,
+            trajectory=options.get("trajectory", self.trajectory),
+            duration=self.episode_seconds,
+        )
+        self._history.clear()
+        info = self._info(obs)
+        info["seed"] = episode_seed
+        return self._observe(obs), info
+
+    def step(self, action):
+        if not self.action_space.contains(action):
+            raise ValueError(f"action {action!r} is not in {self.action_space}")
+        u = float(FORCES[int(action)])
+        obs = self.session.step(u)
+        reward = self.reward_fn(obs["gap"], u)
+        return self._observe(obs), reward, bool(obs["terminated"]), bool(obs["truncated"]), self._info(obs)
+
+    def render(self):
+        if self.render_mode == "rgb_array" and self._last_image is not None:
+            img = self._last_image
+            return np.repeat(img[..., None], 3, axis=2) if img.ndim == 2 else img
+        return None
+
+    def close(self) -> None:
+        self._stack.close()
+
+
+gym.register(id="vacc/VisionACC-v0", entry_point="agent_client.env:VisionACCEnv")
