@@ -17,7 +17,7 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 import os
 import socket
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ def resolve(addr: tuple[str, int]) -> tuple[str, int]:
     """The numeric address replies come from, so they can be compared exactly."""
     host, port = addr
     info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-    return info[0][4][:2]
+    return str(info[0][4][0]), int(info[0][4][1])
 
 
 class Session:

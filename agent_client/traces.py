@@ -27,7 +27,8 @@ def load_trace(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     rows = list(csv.reader(text.splitlines()))
     if not rows or [c.strip() for c in rows[0][:2]] != ["t_s", "speed_mps"]:
         raise InputFileError(f"{path}:1: expected header 't_s,speed_mps'")
-    t, v = [], []
+    t: list[float] = []
+    v: list[float] = []
     for line, row in enumerate(rows[1:], start=2):
         if not row:
             continue

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import socket
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -62,10 +63,10 @@ class FaultySender:
         self.sock = sock
         self.config = config
         self.rng = np.random.default_rng(config.seed)
-        self._held: list[tuple[bytes, object]] = []
+        self._held: list[tuple[bytes, Any]] = []
         self.counts = {"sent": 0, "dropped": 0, "duplicated": 0, "reordered": 0, "truncated": 0}
 
-    def sendto(self, data: bytes, addr: object) -> None:
+    def sendto(self, data: bytes, addr: Any) -> None:
         c = self.config
         roll = self.rng.random(4)
         if roll[0] < c.drop:
@@ -87,7 +88,7 @@ class FaultySender:
         for item in held:
             self._send(*item)
 
-    def _send(self, data: bytes, addr: object) -> None:
+    def _send(self, data: bytes, addr: Any) -> None:
         self.counts["sent"] += 1
         try:
             self.sock.sendto(data, addr)

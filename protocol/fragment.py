@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import struct
 from collections import OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass, field
-from typing import Hashable
 
 from protocol.codec import MAX_MESSAGE_BYTES
 from protocol.errors import DecodeError, FragmentError, LimitError, VersionError

@@ -97,7 +97,7 @@ class Endpoint:
         self.sock.settimeout(timeout)
         try:
             datagram, addr = self.sock.recvfrom(MAX_DATAGRAM + 1)
-        except (socket.timeout, BlockingIOError):
+        except (TimeoutError, BlockingIOError):
             return None
         except ConnectionError:
             # Linux reports an ICMP port-unreachable from an earlier send here.

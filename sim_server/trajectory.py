@@ -216,8 +216,8 @@ def build(
         return _random_ev_window(rng, RANDOM_DURATION, dt)
     if trajectory in ICE_TEST_PARAMS:
         if scenario == "ice":
-            a, w = ICE_TEST_PARAMS[trajectory]
-            return ice_trajectory(np.array(a, float), np.array(w, float), TEST_DURATION, dt)
+            signs, freqs = ICE_TEST_PARAMS[trajectory]
+            return ice_trajectory(np.array(signs, float), np.array(freqs, float), TEST_DURATION, dt)
         name, start = EV_TEST_WINDOWS[trajectory]
         return ev_window(name, start, TEST_DURATION, dt)
     raise TrajectoryError(f"unknown trajectory {trajectory!r}; expected test-1..test-4, random or trace")

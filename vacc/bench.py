@@ -51,6 +51,7 @@ def udp_echo(steps: int, reps: int, payload: int = 64) -> dict[str, Any]:
     """Round trips/s and RTT of a bare Python UDP echo process on loopback."""
     proc = subprocess.Popen([sys.executable, "-c", ECHO_SERVER], stdout=subprocess.PIPE, text=True)
     try:
+        assert proc.stdout is not None
         port = int(proc.stdout.readline())
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.connect(("127.0.0.1", port))
@@ -69,7 +70,8 @@ def udp_echo(steps: int, reps: int, payload: int = 64) -> dict[str, Any]:
         sock.close()
     finally:
         proc.wait(timeout=5)
-        proc.stdout.close()
+        if proc.stdout is not None:
+            proc.stdout.close()
     return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}}
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import os
 import signal
 import socket
 import subprocess
@@ -16,7 +15,7 @@ import pytest
 
 from agent_client.controllers.acc import AccController
 from agent_client.drive import drive_episode
-from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
+from agent_client.errors import FatalSessionError, SessionError
 from agent_client.launcher import READY_PREFIX, local_server
 from agent_client.runlog import COLUMNS
 from agent_client.session import Session

@@ -140,7 +140,7 @@ def test_test_trajectories_are_fixed():
 def test_eq7_matches_the_formula():
     a, w = T.ICE_TEST_PARAMS["test-1"]
     t = np.array([0.0, 1.3])
-    expected = 30 + 0.3 * sum(ai * np.sin(2 * wi * t) for ai, wi in zip(a, w))
+    expected = 30 + 0.3 * sum(ai * np.sin(2 * wi * t) for ai, wi in zip(a, w, strict=True))
     np.testing.assert_allclose(T.eq7_speed(np.array(a, float), np.array(w, float), t), expected)
 
 
