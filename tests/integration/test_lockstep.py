@@ -246,3 +246,26 @@ def test_serve_sigterm_prints_stats():
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 0 and "stats" in err
+
+
+def _images(addr, faults=None, steps=8):
+    with Session(addr, image_format="rgb", image_size=(400, 400), faults=faults) as s:
+        obs = s.reset(seed=4)
+        images = [Session.image(obs)]
+        for _ in range(steps):
+            images.append(Session.image(s.step(0.2)))
+        return images, s.resends
+
+
+def test_full_rgb_images_survive_fragmentation_and_loss():
+    from protocol.faults import FaultConfig
+
+    with local_server() as addr:
+        clean, _ = _images(addr)
+    with local_server("--faults", "drop=0.1,dup=0.05,reorder=0.05,seed=3") as addr:
+        lossy, resends = _images(addr, FaultConfig(drop=0.1, dup=0.05, reorder=0.05, seed=4))
+    assert clean[0].shape == (400, 400, 3) and clean[0].nbytes == 480_000
+    assert resends > 0
+    for a, b in zip(clean, lossy, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(clean[0], clean[-1])
