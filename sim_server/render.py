@@ -34,13 +34,14 @@ import cv2
 import numpy as np
 
 from sim_server import scenery as sc
-from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, CarView, SceneState
+from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, SceneState
 
 __all__ = ["CameraConfig", "Renderer"]
 
 SHIFT = 4  # fractional bits of cv2 drawing coordinates (1/16 px)
 ONE = 1 << SHIFT
-AA = cv2.LINE_AA
+AA = cv2.LINE_AA  # cars and road: anti-aliased, sub-pixel
+L8 = cv2.LINE_8  # scenery: aliased but 2-3x cheaper, and masked out before the network
 PHASE_BUCKETS = 32  # cached backgrounds per dash period (12.19 m / 32 = 0.38 m)
 SHADOW_FACTOR = 0.55  # shadowed ground keeps this fraction of its light
 AMBIENT = 0.5  # share of light on a face turned away from the sun
@@ -48,8 +49,8 @@ DIFFUSE = 0.6  # Lambert term weight
 MIN_SUN_ELEVATION = 0.2  # [rad] caps shadow length at ~5 object heights
 SCENERY_FAR = 350.0  # [m] trees and buildings are drawn up to here
 SHADOW_FAR = 220.0  # [m] scenery shadows beyond this are sub-pixel noise
-LEAD_SUPERSAMPLE = 4  # lead car drawn at up to 4x, then area-averaged
-LEAD_SUPERSAMPLE_MAX = 200  # [px] supersampled layer side cap: k = min(4, 200 // roi)
+AA_INSET = 0.7  # [px] cv2's LINE_AA fill paints this far beyond each edge (measured)
+LOD_WIDTH = 12.0  # [px] traffic narrower than this is drawn without small parts
 
 
 @dataclass(frozen=True)
@@ -186,12 +187,18 @@ class _CarTemplate:
     faces: tuple[tuple[str, tuple[str, float] | None], ...]
 
 
-def _make_template(kind: str) -> _CarTemplate:
-    """Build the car model: ``rear``, ``brake`` (rear, braking), ``front``, ``plain``."""
+def _make_template(kind: str, lod: bool = False) -> _CarTemplate:
+    """Build a car model: ``rear``, ``brake`` (rear, braking), ``front`` or ``plain``.
+
+    ``lod`` drops what is sub-pixel on a distant car: the underbody, the cabin's
+    sides and top, the bumper and the plate.
+    """
     oncoming = kind == "front"
-    boxes = ("plain",) if kind == "plain" else ("under", "body", "cabin")
+    boxes = ("plain",) if kind == "plain" else (("body", "cabin") if lod else ("under", "body", "cabin"))
     decals = {"rear": _DECALS_REAR, "brake": _DECALS_BRAKE, "front": _DECALS_FRONT,
               "plain": {}}[kind]
+    if lod:
+        decals = {k: v for k, v in decals.items() if k not in ("bumper", "plate", "grille")}
     pts: list[tuple[float, float, float]] = []
     index: list[list[int]] = []
     faces: list[tuple[str, tuple[str, float] | None]] = []
@@ -205,10 +212,11 @@ def _make_template(kind: str) -> _CarTemplate:
             index.append([o + c for c in _FACE_NEAR])
             faces.append(("under", None))
             continue
-        for face, role, cond in ((_FACE_LEFT, "left", ("left", x0)),
-                                 (_FACE_RIGHT, "right", ("right", x1)),
-                                 (_FACE_TOP, "top", ("top", y1)),
-                                 (_FACE_NEAR, "near", None)):
+        sides = ((_FACE_LEFT, "left", ("left", x0)), (_FACE_RIGHT, "right", ("right", x1)),
+                 (_FACE_TOP, "top", ("top", y1)))
+        if lod and name == "cabin":
+            sides = ()
+        for face, role, cond in (*sides, (_FACE_NEAR, "near", None)):
             index.append([o + c for c in face])
             faces.append((role, cond))
     for name, (x0, x1, y0, y1, z) in decals.items():
@@ -220,6 +228,7 @@ def _make_template(kind: str) -> _CarTemplate:
 
 
 _TEMPLATES = {k: _make_template(k) for k in ("rear", "brake", "front", "plain")}
+_TEMPLATES.update({k + "_lod": _make_template(k, lod=True) for k in ("rear", "brake", "front")})
 # fixed colours (RGB) of the parts that are not body paint; lamps are emissive
 _FIXED = {
     "under": ((28, 28, 30), 0.0),
@@ -269,6 +278,41 @@ def _fix(uv: np.ndarray) -> np.ndarray:
     return np.rint(uv * ONE).astype(np.int32)
 
 
+def _shrink(uv: np.ndarray, d: float = AA_INSET) -> np.ndarray:
+    """Pull polygon vertices ``(..., n, 2)`` [px] towards their centroid, per axis.
+
+    cv2's anti-aliased fill covers about :data:`AA_INSET` px beyond every edge, so
+    a polygon drawn as given comes out 1.4 px too wide and tall. Shrinking each
+    coordinate towards the centroid removes that bias exactly for the axis-aligned
+    rectangles that car and building faces are (a level camera sees vertical planes
+    facing it as rectangles) and nearly for their trapezoidal sides. Parts thinner
+    than 1.4 px collapse to a line, which cv2 draws about 1 px wide.
+    """
+    c = uv.sum(axis=-2, keepdims=True)
+    c *= 1.0 / uv.shape[-2]
+    r = uv - c
+    return c + np.copysign(np.maximum(np.abs(r) - d, 0.0), r)
+
+
+def _inset(poly: np.ndarray, d: float = AA_INSET) -> np.ndarray:
+    """Offset each edge of a convex polygon ``(n, 2)`` [px] inwards by ``d`` [px] (miter).
+
+    ``d = AA_INSET`` for anti-aliased fills; 0.5 for ``LINE_8`` fills, which paint
+    every pixel whose centre is on or inside the outline.
+    """
+    e = np.roll(poly, -1, axis=0) - poly
+    area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
+    n = np.stack([-e[:, 1], e[:, 0]], 1) * (1.0 if area2 > 0 else -1.0)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n_prev = np.roll(n, 1, axis=0)
+    denom = np.maximum(1.0 + np.sum(n * n_prev, axis=1, keepdims=True), 0.2)
+    out = poly + d * (n + n_prev) / denom
+    area2_out = float(np.sum(out[:, 0] * np.roll(out[:, 1], -1) - np.roll(out[:, 0], -1) * out[:, 1]))
+    if area2_out * area2 <= 0:  # thinner than the AA fringe: fall back to per-axis shrink
+        return _shrink(poly)
+    return out
+
+
 class Renderer:
     """Renders :class:`~sim_server.scene.SceneState` snapshots to RGB images.
 
@@ -292,6 +336,7 @@ class Renderer:
         self._bg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._static: dict[int, np.ndarray] = {}
         self._scenery = sc.SceneryCache()
+        self._face_cache: dict[tuple, list] = {}
         cfg = self.config
         self._f = cfg.focal_px
         self._h = cfg.mount_height
@@ -349,15 +394,15 @@ class Renderer:
         ]
         for x0, x1, col in strips:
             quad = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]])
-            cv2.fillConvexPoly(img, _fix(cfg.project(quad)), col, AA, SHIFT)
+            cv2.fillConvexPoly(img, _fix(_inset(cfg.project(quad))), col, AA, SHIFT)
         # median barrier: the host-facing side and the top
         bx = sc.BARRIER_X + 0.5 * sc.BARRIER_WIDTH
         bh = sc.BARRIER_HEIGHT
         side = np.array([[bx, 0, z0], [bx, bh, z0], [bx, bh, z1], [bx, 0, z1]])
         top = np.array([[bx - sc.BARRIER_WIDTH, bh, z0], [bx, bh, z0], [bx, bh, z1],
                         [bx - sc.BARRIER_WIDTH, bh, z1]])
-        cv2.fillConvexPoly(img, _fix(cfg.project(top)), tuple(0.95 * c for c in sc.CONCRETE), AA, SHIFT)
-        cv2.fillConvexPoly(img, _fix(cfg.project(side)), tuple(0.8 * c for c in sc.CONCRETE), AA, SHIFT)
+        cv2.fillConvexPoly(img, _fix(_inset(cfg.project(top))), tuple(0.95 * c for c in sc.CONCRETE), AA, SHIFT)
+        cv2.fillConvexPoly(img, _fix(_inset(cfg.project(side))), tuple(0.8 * c for c in sc.CONCRETE), AA, SHIFT)
         # haze: every ground row is at one depth (no roll), so fog per row is exact
         below = rows - self._horizon
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -402,7 +447,7 @@ class Renderer:
             col = tuple(float(c * (1 - fog) + h * fog) for c, h in zip(sc.WHITE, sc.HAZE, strict=True))
             for x in sc.DASH_X:
                 quad = np.array([[x - hw, 0, za], [x + hw, 0, za], [x + hw, 0, zb], [x - hw, 0, zb]])
-                cv2.fillConvexPoly(img, _fix(cfg.project(quad)), col, AA, SHIFT)
+                cv2.fillConvexPoly(img, _fix(_inset(cfg.project(quad))), col, AA, SHIFT)
         dark = cv2.convertScaleAbs(img, alpha=SHADOW_FACTOR)
         self._bg[key] = (img, dark)
         return img, dark
@@ -463,20 +508,18 @@ class Renderer:
             batch = self._scenery.window(scene.scenery_seed, s_cam, s_cam + SCENERY_FAR)
             trees, blds = self._scenery_items(batch, s_cam)
             self._scenery_shadows(shadow_mask, rows, trees, blds, sh)
-        lead_item = None
-        for item in cars:
-            if item[4]:
-                lead_item = item
+        polys = self._car_shadows(cars, sh)
+        for i, poly in enumerate(polys):
+            if poly is None or cars[i][4]:
                 continue
-            poly = self._car_shadow(item, sh)
-            if poly is not None:
-                cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
-                self._span(rows, poly)
+            cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
+            self._span(rows, poly)
         if rows[1] >= rows[0]:
             r = slice(max(rows[0], 0), min(rows[1] + 1, cfg.height))
             cv2.copyTo(dark[r], shadow_mask[r], img[r])
-        if lead_item is not None:
-            self._soft_shadow(img, self._car_shadow(lead_item, sh))
+        for i, item in enumerate(cars):
+            if item[4]:
+                self._soft_shadow(img, polys[i])
 
         # 2. buildings (always outside the trees and the road, so never in front)
         if blds is not None and len(blds[0]):
@@ -488,13 +531,14 @@ class Renderer:
             tree_draw = self._tree_geometry(trees, light)
             order += [(z, 0, i) for i, z in enumerate(trees[0].tolist())]
         order.sort(key=lambda t: (-t[0], t[1], t[2]))
+        car_draw = self._car_geometry(cars, light) if cars else []
         for _, kind, i in order:
             if kind == 0:
                 self._draw_tree(img, tree_draw, i)
-            elif cars[i][4]:
-                self._draw_lead(img, cars[i], light)
             else:
-                self._draw_car(img, cars[i], light)
+                fq, faces = car_draw[i]
+                for j, col in faces:
+                    cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
         return img
 
     @staticmethod
@@ -515,17 +559,51 @@ class Renderer:
             return None
         return _fix(self._proj(p3))
 
-    def _car_shadow(self, item: tuple, sh: tuple[float, float]) -> np.ndarray | None:
-        """Ground shadow polygon of a car's box (fixed point), or None if out of view."""
-        z_near, x_c, _, car, _ = item
-        w2 = 0.5 * car.width
-        hgt = 0.92 * car.height  # the cabin is narrower than the footprint
-        xs = np.array([x_c - w2, x_c + w2, x_c + w2, x_c - w2])
-        zs = np.array([z_near, z_near, z_near + car.length, z_near + car.length])
-        pts = np.empty((8, 2))
-        pts[:4, 0], pts[:4, 1] = xs, zs
-        pts[4:, 0], pts[4:, 1] = xs + sh[0] * hgt, zs + sh[1] * hgt
-        return self._ground_poly(pts)
+    def _car_shadows(self, cars: list, sh: tuple[float, float]) -> list[np.ndarray | None]:
+        """Ground shadows of the cars' boxes as fixed-point polygons (None: not in view).
+
+        The shadow of a box on the ground is its footprint swept along the sun's
+        ground displacement: a hexagon, built here without a hull computation. The
+        lead's polygon is shrunk for an anti-aliased fill, the others for LINE_8.
+        """
+        hexes: list[list[tuple[float, float]]] = []
+        for z_near, x_c, _, car, _ in cars:
+            w2 = 0.5 * car.width
+            hgt = 0.92 * car.height  # the cabin is narrower than the footprint
+            a, b = sh[0] * hgt, sh[1] * hgt
+            x0, x1, z0, z1 = x_c - w2, x_c + w2, z_near, z_near + car.length
+            corners = ((x0, z0), (x1, z0), (x1, z1), (x0, z1))  # counter-clockwise in (X, Z)
+            leads = (-b > 0, a > 0, b > 0, -a > 0)  # edge c_i c_i+1 faces along the sweep
+            pts: list[tuple[float, float]] = []
+            for i, (x, z) in enumerate(corners):
+                prev_lead, next_lead = leads[i - 1], leads[i]
+                if not prev_lead:
+                    pts.append((x, z))
+                if prev_lead or next_lead:
+                    pts.append((x + a, z + b))
+                if prev_lead and not next_lead:
+                    pts.append((x, z))
+            pts += [pts[-1]] * (6 - len(pts))  # pad to a hexagon for one batched projection
+            hexes.append(pts)
+        if not hexes:
+            return []
+        g = np.zeros((len(hexes), 6, 3))
+        g[:, :, 0::2] = hexes
+        ok = g[:, :, 2].min(axis=1) >= self._z_ground_min
+        uv = self._proj(np.where(ok[:, None, None], g, 1.0))
+        d = np.array([AA_INSET if c[4] else 0.5 for c in cars])
+        c = uv.sum(axis=1, keepdims=True)
+        c *= 1.0 / 6.0
+        r = uv - c
+        fx = _fix(c + np.copysign(np.maximum(np.abs(r) - d[:, None, None], 0.0), r))
+        out: list[np.ndarray | None] = []
+        for i in range(len(cars)):
+            if ok[i]:
+                out.append(fx[i])
+                continue
+            p3 = _clip_near(g[i], self._z_ground_min)  # rare: a shadow reaching under the camera
+            out.append(_fix(_shrink(self._proj(p3), float(d[i]))) if len(p3) >= 3 else None)
+        return out
 
     def _soft_shadow(self, img: np.ndarray, poly: np.ndarray | None) -> None:
         """Darken the ground under ``poly`` with anti-aliased edges (the lead car's)."""
@@ -608,17 +686,18 @@ class Renderer:
             p[:, q, 0] = xb[:, None]
             p[:, q, 1] = np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k
             p[:, q, 2] = np.stack([z0 + 1.0, z1 - 1.0, z1 - 1.0, z0 + 1.0], 1)
-        fx = _fix(self._proj(p))
+        uv = self._proj(p).reshape(n, -1, 4, 2)
+        fx = _fix(_shrink(uv, 0.5).reshape(n, -1, 2))
         fog = 1.0 - np.exp(-z0 / sc.FOG_DISTANCE)
         for i in range(n):
             c_road = _shade(rgb[i], -side[i] * light[0], fog[i])
             if zb[i] >= self._z_ground_min:
-                cv2.fillConvexPoly(img, fx[i, 0:4], _shade(rgb[i], -light[2], fog[i]), AA, SHIFT)
-            cv2.fillConvexPoly(img, fx[i, 4:8], c_road, AA, SHIFT)
-            if z0[i] < 160.0:  # window bands on the road-facing wall
+                cv2.fillConvexPoly(img, fx[i, 0:4], _shade(rgb[i], -light[2], fog[i]), L8, SHIFT)
+            cv2.fillConvexPoly(img, fx[i, 4:8], c_road, L8, SHIFT)
+            if z0[i] < 120.0:  # window bands on the road-facing wall
                 win = (0.45 * c_road[0], 0.45 * c_road[1], 0.45 * c_road[2])
                 for k in range(min(int(hb[i] // 3.5), _WINDOW_FLOORS)):
-                    cv2.fillConvexPoly(img, fx[i, 8 + 4 * k:12 + 4 * k], win, AA, SHIFT)
+                    cv2.fillConvexPoly(img, fx[i, 8 + 4 * k:12 + 4 * k], win, L8, SHIFT)
 
     def _tree_geometry(self, trees: tuple, light: tuple) -> tuple:
         """Fixed-point trunk quads, crown centres/radii and colours of all trees."""
@@ -633,8 +712,10 @@ class Renderer:
         p[:, 4, 1] = yc
         p[:, 5, 0] = x + 0.35 * r * np.clip(2 * light[0], -1, 1)  # sunlit side of the crown
         p[:, 5, 1] = yc + 0.3 * r
-        fx = _fix(self._proj(p))
-        rad = (self._f * r / z * ONE).astype(np.int64)
+        uv = self._proj(p)
+        uv[:, 0:4] = _shrink(uv[:, 0:4], 0.5)
+        fx = _fix(uv)
+        rad = (np.maximum(self._f * r / z - 0.5, 0.0) * ONE).astype(np.int64)
         fog = (1.0 - np.exp(-z / sc.FOG_DISTANCE))[:, None]
         k_crown = AMBIENT + DIFFUSE * 0.1
         k_lit = AMBIENT + DIFFUSE * (max(0.0, 0.35 - 0.65 * light[2]) + 0.3 * light[1] + 0.3)
@@ -647,26 +728,36 @@ class Renderer:
     @staticmethod
     def _draw_tree(img: np.ndarray, geo: tuple, i: int) -> None:
         fx, rad, crown, lit, trunk = geo
-        cv2.fillConvexPoly(img, fx[i, 0:4], trunk[i], AA, SHIFT)
+        if rad[i] > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
+            cv2.fillConvexPoly(img, fx[i, 0:4], trunk[i], L8, SHIFT)
         c = fx[i, 4]
-        cv2.circle(img, (int(c[0]), int(c[1])), rad[i], crown[i], -1, AA, SHIFT)
-        if rad[i] > 2.5 * ONE:
+        cv2.circle(img, (int(c[0]), int(c[1])), rad[i], crown[i], -1, L8, SHIFT)
+        if rad[i] > 5 * ONE:
             c = fx[i, 5]
-            cv2.circle(img, (int(c[0]), int(c[1])), int(0.6 * rad[i]), lit[i], -1, AA, SHIFT)
+            cv2.circle(img, (int(c[0]), int(c[1])), int(0.6 * rad[i]), lit[i], -1, L8, SHIFT)
 
-    def _car_draw_list(self, item: tuple, light: tuple) -> tuple[np.ndarray, list]:
-        """World points of a car and its visible faces as ``(index_row, colour)``."""
+    def _car_faces(self, item: tuple, light: tuple, lod: bool) -> tuple[_CarTemplate, list]:
+        """The template of a car and its visible faces as ``(face_row, colour)``.
+
+        Cached per template, visibility case, body colour and light: the world sends
+        the same few cars every step.
+        """
         z_near, x_c, oncoming, car, _ = item
         if not self.car_detail:
-            tpl = _TEMPLATES["plain"]
+            kind = "plain"
         elif oncoming:
-            tpl = _TEMPLATES["front"]
+            kind = "front"
         else:
-            tpl = _TEMPLATES["brake" if car.braking else "rear"]
+            kind = "brake" if car.braking else "rear"
+        if lod and kind != "plain":
+            kind += "_lod"
+        tpl = _TEMPLATES[kind]
         sx, sy = car.width / CAR_WIDTH, car.height / CAR_HEIGHT
-        p = tpl.points * (sx, sy, car.length / CAR_LENGTH)
-        p += (x_c, 0.0, z_near)
-        fog = 1.0 - math.exp(-z_near / sc.FOG_DISTANCE)
+        side = 1 if x_c - 0.5 * car.width > 0 else (-1 if x_c + 0.5 * car.width < 0 else 0)
+        key = (kind, side, car.color, car.height, car.width, light)
+        hit = self._face_cache.get(key)
+        if hit is not None:
+            return tpl, hit
         body = car.color
         h = self._h
         cols: dict[str, tuple[float, float, float]] = {}
@@ -683,82 +774,52 @@ class Renderer:
             col = cols.get(role)
             if col is None:
                 if role == "near":
-                    col = _shade(body, -light[2], fog)
+                    col = _shade(body, -light[2], 0.0)
                 elif role == "top":
-                    col = _shade(body, light[1], fog)
+                    col = _shade(body, light[1], 0.0)
                 elif role == "left":
-                    col = _shade(body, -light[0], fog)
+                    col = _shade(body, -light[0], 0.0)
                 elif role == "right":
-                    col = _shade(body, light[0], fog)
+                    col = _shade(body, light[0], 0.0)
                 elif role in _LAMPS:
-                    col = _emit(_LAMPS[role], fog)
+                    col = _emit(_LAMPS[role], 0.0)
                 else:
                     base, lam = _FIXED[role]
                     if role == "window" and oncoming:
                         base = (60, 72, 88)
-                    col = _shade(base, lam, fog)
+                    col = _shade(base, lam, 0.0)
                 cols[role] = col
             out.append((j, col))
-        return p, out
+        if len(self._face_cache) > 512:
+            self._face_cache.clear()
+        self._face_cache[key] = out
+        return tpl, out
 
-    def _draw_car(self, img: np.ndarray, item: tuple, light: tuple, k: float = 1.0,
-                  origin: tuple[float, float] = (0.0, 0.0), alpha: np.ndarray | None = None) -> None:
-        """Draw a car; ``k``/``origin`` map pixel coordinates into a supersampled layer."""
-        p, faces = self._car_draw_list(item, light)
+    def _car_geometry(self, cars: list, light: tuple) -> list[tuple[np.ndarray, list]]:
+        """Fixed-point faces ``(F, 4, 2)`` and face lists of all cars, in one projection."""
+        tpls, face_lists, scales, offs, counts = [], [], [], [], []
+        for item in cars:
+            z_near, x_c, _, car, is_lead = item
+            lod = not is_lead and self._f * car.width / z_near < LOD_WIDTH
+            tpl, faces = self._car_faces(item, light, lod)
+            tpls.append(tpl)
+            face_lists.append(faces)
+            scales.append((car.width / CAR_WIDTH, car.height / CAR_HEIGHT, car.length / CAR_LENGTH))
+            offs.append((x_c, 0.0, z_near))
+            counts.append(len(tpl.points))
+        p = np.concatenate([t.points for t in tpls])
+        p *= np.repeat(np.array(scales), counts, axis=0)
+        p += np.repeat(np.array(offs), counts, axis=0)
         uv = self._proj(p)
-        if k != 1.0:
-            uv -= origin
-            uv += 0.5
-            uv *= k
-            uv -= 0.5
-        tpl_index = self._index_of(item)
-        fq = _fix(uv)[tpl_index]  # (F, 4, 2)
-        for j, col in faces:
-            cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
-            if alpha is not None:
-                cv2.fillConvexPoly(alpha, fq[j], 255, AA, SHIFT)
-
-    def _index_of(self, item: tuple) -> np.ndarray:
-        car = item[3]
-        if not self.car_detail:
-            return _TEMPLATES["plain"].index
-        if item[2]:
-            return _TEMPLATES["front"].index
-        return _TEMPLATES["brake" if car.braking else "rear"].index
-
-    def _draw_lead(self, img: np.ndarray, item: tuple, light: tuple) -> None:
-        """Draw the lead car supersampled, composited with premultiplied alpha.
-
-        The car is drawn at ``k`` times the resolution into a black colour layer and
-        a coverage layer, both area-averaged back: the colour layer is then the
-        premultiplied colour and the coverage the exact box-filtered alpha, so edges
-        move smoothly with sub-pixel changes of the gap.
-        """
-        z_near, x_c, _, car, _ = item
-        w2 = 0.5 * car.width + 0.05  # braking lamps bloom slightly outside the body
-        zs = (z_near, z_near + car.length)
-        box = np.array([[x, y, z] for x in (x_c - w2, x_c + w2) for y in (0.0, car.height) for z in zs])
-        uv = self._proj(box)
-        W, H = self.config.width, self.config.height
-        x0 = max(int(math.floor(uv[:, 0].min())) - 1, 0)
-        x1 = min(int(math.ceil(uv[:, 0].max())) + 2, W)
-        y0 = max(int(math.floor(uv[:, 1].min())) - 1, 0)
-        y1 = min(int(math.ceil(uv[:, 1].max())) + 2, H)
-        if x1 <= x0 or y1 <= y0:
-            return
-        w, h = x1 - x0, y1 - y0
-        k = min(LEAD_SUPERSAMPLE, LEAD_SUPERSAMPLE_MAX // max(w, h))
-        if k <= 1:  # near and large: plain anti-aliasing is already smooth enough
-            self._draw_car(img, item, light)
-            return
-        layer = np.zeros((h * k, w * k, 3), np.uint8)
-        alpha = np.zeros((h * k, w * k), np.uint8)
-        self._draw_car(layer, item, light, float(k), (float(x0), float(y0)), alpha)
-        col = cv2.resize(layer, (w, h), interpolation=cv2.INTER_AREA)
-        a = cv2.resize(alpha, (w, h), interpolation=cv2.INTER_AREA)
-        roi = img[y0:y1, x0:x1]
-        cv2.multiply(roi, cv2.cvtColor(cv2.bitwise_not(a), cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
-        cv2.add(roi, col, dst=roi)
+        base = np.cumsum([0] + counts[:-1])
+        idx = np.concatenate([t.index + b for t, b in zip(tpls, base, strict=True)])
+        fq = _fix(_shrink(uv[idx]))  # (sum F, 4, 2)
+        out = []
+        f0 = 0
+        for t, faces in zip(tpls, face_lists, strict=True):
+            out.append((fq[f0:f0 + len(t.index)], faces))
+            f0 += len(t.index)
+        return out
 
 
 _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
