@@ -29,3 +29,6 @@ main.add_command(bench)
 from vacc.demo import demo  # noqa: E402
 
 main.add_command(demo)
+
+from vacc.snapshot_cmd import snapshot  # noqa: E402
+main.add_command(snapshot)
