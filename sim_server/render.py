@@ -47,8 +47,8 @@ SHADOW_FACTOR = 0.55  # shadowed ground keeps this fraction of its light
 AMBIENT = 0.5  # share of light on a face turned away from the sun
 DIFFUSE = 0.6  # Lambert term weight
 MIN_SUN_ELEVATION = 0.2  # [rad] caps shadow length at ~5 object heights
-SCENERY_FAR = 350.0  # [m] trees and buildings are drawn up to here
-SHADOW_FAR = 220.0  # [m] scenery shadows beyond this are sub-pixel noise
+SCENERY_FAR = 220.0  # [m] trees and buildings are drawn up to here (cost grows with it)
+SHADOW_FAR = 150.0  # [m] scenery shadows beyond this are thin slivers at the horizon
 AA_INSET = 0.7  # [px] cv2's LINE_AA fill paints this far beyond each edge (measured)
 LOD_WIDTH = 12.0  # [px] traffic narrower than this is drawn without small parts
 
@@ -271,6 +271,28 @@ def _clip_near(poly: np.ndarray, z_near: float) -> np.ndarray:
             t = (z_near - a[2]) / (b[2] - a[2])
             out.append(a + t * (b - a))
     return np.array(out) if out else np.zeros((0, 3))
+
+
+def _swept_rect(x0: float, x1: float, z0: float, z1: float, a: float, b: float) -> list[tuple[float, float]]:
+    """Ground rectangle ``[x0, x1] x [z0, z1]`` swept by ``(a, b)`` [m]: a hexagon.
+
+    This is the shadow of a box whose top is displaced by ``(a, b)`` on the ground.
+    Returned as exactly 6 ``(X, Z)`` points (repeated last point as padding) so many
+    shadows can be projected in one batch.
+    """
+    corners = ((x0, z0), (x1, z0), (x1, z1), (x0, z1))  # counter-clockwise in (X, Z)
+    leads = (-b > 0, a > 0, b > 0, -a > 0)  # edge c_i c_i+1 faces along the sweep
+    pts: list[tuple[float, float]] = []
+    for i, (x, z) in enumerate(corners):
+        prev_lead, next_lead = leads[i - 1], leads[i]
+        if not prev_lead:
+            pts.append((x, z))
+        if prev_lead or next_lead:
+            pts.append((x + a, z + b))
+        if prev_lead and not next_lead:
+            pts.append((x, z))
+    pts += [pts[-1]] * (6 - len(pts))
+    return pts
 
 
 def _fix(uv: np.ndarray) -> np.ndarray:
@@ -570,21 +592,8 @@ class Renderer:
         for z_near, x_c, _, car, _ in cars:
             w2 = 0.5 * car.width
             hgt = 0.92 * car.height  # the cabin is narrower than the footprint
-            a, b = sh[0] * hgt, sh[1] * hgt
-            x0, x1, z0, z1 = x_c - w2, x_c + w2, z_near, z_near + car.length
-            corners = ((x0, z0), (x1, z0), (x1, z1), (x0, z1))  # counter-clockwise in (X, Z)
-            leads = (-b > 0, a > 0, b > 0, -a > 0)  # edge c_i c_i+1 faces along the sweep
-            pts: list[tuple[float, float]] = []
-            for i, (x, z) in enumerate(corners):
-                prev_lead, next_lead = leads[i - 1], leads[i]
-                if not prev_lead:
-                    pts.append((x, z))
-                if prev_lead or next_lead:
-                    pts.append((x + a, z + b))
-                if prev_lead and not next_lead:
-                    pts.append((x, z))
-            pts += [pts[-1]] * (6 - len(pts))  # pad to a hexagon for one batched projection
-            hexes.append(pts)
+            hexes.append(_swept_rect(x_c - w2, x_c + w2, z_near, z_near + car.length,
+                                     sh[0] * hgt, sh[1] * hgt))
         if not hexes:
             return []
         g = np.zeros((len(hexes), 6, 3))
@@ -653,18 +662,27 @@ class Renderer:
             rows[0] = min(rows[0], int(fx[:, :, 1].min()) >> SHIFT)
             rows[1] = max(rows[1], (int(fx[:, :, 1].max()) >> SHIFT) + 1)
         zb, xb, ln, dp, hb = blds[0], blds[1], blds[2], blds[3], blds[4]
+        hexes = []
         for i in range(len(zb)):
             if zb[i] > SHADOW_FAR:
                 continue
-            side = 1.0 if xb[i] > 0 else -1.0
-            xs = np.array([xb[i], xb[i] + side * dp[i], xb[i] + side * dp[i], xb[i]])
-            zs = np.array([zb[i], zb[i], zb[i] + ln[i], zb[i] + ln[i]])
-            pts = np.concatenate([np.stack([xs, zs], 1),
-                                  np.stack([xs + sh[0] * hb[i], zs + sh[1] * hb[i]], 1)])
-            poly = self._ground_poly(pts)
-            if poly is not None:
-                cv2.fillConvexPoly(mask, poly, 255, cv2.LINE_8, SHIFT)
-                self._span(rows, poly)
+            xa, xc = sorted((float(xb[i]), float(xb[i] + (dp[i] if xb[i] > 0 else -dp[i]))))
+            hexes.append(_swept_rect(xa, xc, float(zb[i]), float(zb[i] + ln[i]),
+                                     sh[0] * float(hb[i]), sh[1] * float(hb[i])))
+        if not hexes:
+            return
+        g = np.zeros((len(hexes), 6, 3))
+        g[:, :, 0::2] = hexes
+        for poly in g:
+            if poly[:, 2].min() < self._z_ground_min:  # reaches beside the camera: clip
+                p3 = _clip_near(poly, self._z_ground_min)
+                if len(p3) < 3:
+                    continue
+                fx = _fix(self._proj(p3))
+            else:
+                fx = _fix(self._proj(poly))
+            cv2.fillConvexPoly(mask, fx, 255, cv2.LINE_8, SHIFT)
+            self._span(rows, fx)
 
     # ------------------------------------------------------------------- objects
     def _draw_buildings(self, img: np.ndarray, blds: tuple, light: tuple) -> None:
@@ -675,17 +693,18 @@ class Renderer:
         z1 = zb + ln
         x1 = xb + side * dp
         p = np.zeros((n, 8 + 4 * _WINDOW_FLOORS, 3))
-        p[:, 0:4, 0] = np.stack([xb, x1, x1, xb], 1)
-        p[:, 0:4, 1] = np.stack([0 * hb, 0 * hb, hb, hb], 1)
-        p[:, 0:4, 2] = z0[:, None]
-        p[:, 4:8, 0] = xb[:, None]
-        p[:, 4:8, 1] = np.stack([0 * hb, 0 * hb, hb, hb], 1)
-        p[:, 4:8, 2] = np.stack([z0, z1, z1, z0], 1)
+        p[:, (0, 3, 4, 5, 6, 7), 0] = xb[:, None]
+        p[:, 1:3, 0] = x1[:, None]
+        p[:, (0, 1, 4, 5), 1] = 0.0
+        p[:, (2, 3, 6, 7), 1] = hb[:, None]
+        p[:, (0, 1, 2, 3, 4, 7), 2] = z0[:, None]
+        p[:, 5:7, 2] = z1[:, None]
         for k in range(_WINDOW_FLOORS):
             q = slice(8 + 4 * k, 12 + 4 * k)
             p[:, q, 0] = xb[:, None]
             p[:, q, 1] = np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k
-            p[:, q, 2] = np.stack([z0 + 1.0, z1 - 1.0, z1 - 1.0, z0 + 1.0], 1)
+            p[:, q, 2] = (z0 + 1.0)[:, None]
+            p[:, 9 + 4 * k:11 + 4 * k, 2] = (z1 - 1.0)[:, None]
         uv = self._proj(p).reshape(n, -1, 4, 2)
         fx = _fix(_shrink(uv, 0.5).reshape(n, -1, 2))
         fog = 1.0 - np.exp(-z0 / sc.FOG_DISTANCE)
@@ -824,4 +843,4 @@ class Renderer:
 
 _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
 _HEX_SIN = np.sin(np.linspace(0, 2 * np.pi, 7)[:-1])
-_WINDOW_FLOORS = 5  # at most this many window bands per building
+_WINDOW_FLOORS = 3  # at most this many window bands per building

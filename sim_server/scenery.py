@@ -110,7 +110,7 @@ def _tile(seed: int, tile: int) -> SceneryBatch:
     bs, bx, bl, bd, bh, bc = [], [], [], [], [], []
     for side in (+1, -1):
         near = CARRIAGEWAY_EDGE_R + SHOULDER_OUTER + 3.0 if side > 0 else ONCOMING_EDGE_OUT - 5.5
-        n_trees = int(rng.integers(1, 5))
+        n_trees = int(rng.integers(1, 4))
         for _ in range(n_trees):
             ts.append(s0 + rng.uniform(0.0, TILE_LENGTH))
             tx.append(near + side * rng.uniform(0.0, 9.0))
@@ -142,6 +142,8 @@ class SceneryCache:
     def __init__(self) -> None:
         self._key: tuple[int, int, int] | None = None
         self._batch: SceneryBatch | None = None
+        self._seed: int | None = None
+        self._tiles: dict[int, SceneryBatch] = {}
 
     def window(self, seed: int, s_from: float, s_to: float) -> SceneryBatch:
         """All scenery whose tile overlaps ``[s_from, s_to]`` [m] (may include more)."""
@@ -149,7 +151,15 @@ class SceneryCache:
         t1 = int(np.floor(s_to / TILE_LENGTH))
         key = (seed, t0, t1)
         if key != self._key:
-            tiles = [_tile(seed, t) for t in range(t0, t1 + 1)]
+            if seed != self._seed:
+                self._tiles.clear()
+                self._seed = seed
+            for t in range(t0, t1 + 1):
+                if t not in self._tiles:
+                    self._tiles[t] = _tile(seed, t)
+            for t in [t for t in self._tiles if t < t0 - 2 or t > t1 + 2]:
+                del self._tiles[t]
+            tiles = [self._tiles[t] for t in range(t0, t1 + 1)]
             self._batch = SceneryBatch(
                 *(np.concatenate([getattr(t, n) for t in tiles]) for n in SceneryBatch.__dataclass_fields__)
             )
