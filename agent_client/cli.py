@@ -6,10 +6,28 @@ import contextlib
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import click
 
 from agent_client.controllers.acc import AccController
+from agent_client.controllers.hdm import NAME as HDM_NAME
+from agent_client.controllers.hdm import HumanDriverModel
+from agent_client.controllers.human_file import (
+    PADS,
+    HumanFileController,
+    HumanFileHeader,
+    HumanFileRecorder,
+    RecordingController,
+    read_human_file,
+    trajectory_label,
+)
+from agent_client.controllers.keyboard import (
+    DrivingWindow,
+    JoystickMap,
+    KeyboardController,
+    require_pygame,
+)
 from agent_client.drive import drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import local_server
@@ -19,6 +37,7 @@ from protocol.faults import FaultConfig
 
 CONTROLLERS = ("acc", "hdm", "ddqn", "human-file", "keyboard")
 TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4", "random")
+LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
 
 
 def parse_hostport(value: str) -> tuple[str, int]:
@@ -38,6 +57,13 @@ def parse_faults(ctx: click.Context, param: click.Parameter, value: str | None) 
         return None
     try:
         return FaultConfig.parse(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
+def parse_joystick_map(ctx: click.Context, param: click.Parameter, value: str) -> JoystickMap:
+    try:
+        return JoystickMap.parse(value)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from None
 
@@ -66,6 +92,12 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--server-faults", default=None, help="Faults for the spawned server's sends (same syntax).")
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
 @click.option("--quiet", is_flag=True, help="Print no summary.")
+@click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False, writable=True), help="Also write the forces driven as a human-file (docs/human.md).")
+@click.option("--pad", default="error", show_default=True, type=click.Choice(PADS), help="--controller human-file: past the file's end, fail, hold the last force, or coast at 0.")
+@click.option("--realtime/--no-realtime", default=None, help="Spawn the server paced to the wall clock. Default: on for --controller keyboard only.")
+@click.option("--joystick", default=0, show_default=True, type=int, help="--controller keyboard: SDL index of the joystick/wheel whose pedals to read, if plugged in; -1: none.")
+@click.option("--joystick-map", default="throttle=1,brake=2,released=1,pressed=-1,deadzone=0.05", show_default=True, callback=parse_joystick_map, help="Pedal axes and raw travel (G27-style default).")
+@click.option("--window-scale", default=2, show_default=True, type=click.IntRange(1, 4), help="--controller keyboard: zoom of the 400x400 camera image.")
 def drive(
     controller: str,
     server: str | None,
@@ -80,24 +112,70 @@ def drive(
     server_faults: str | None,
     give_up: float,
     quiet: bool,
+    record_path: str | None,
+    pad: str,
+    realtime: bool | None,
+    joystick: int,
+    joystick_map: JoystickMap,
+    window_scale: int,
 ) -> None:
     """Drive one episode with a controller over UDP and write the run log.
 
     The log has one row per control step: t,frame,v_host,v_lead,gap,accel,force,
     collision,a_lead (SI units). Exits non-zero if the server is lost.
     """
-    if controller != "acc":
-        raise click.UsageError(f"--controller {controller} is not available yet in this version; use --controller acc")
-    policy = AccController()
+    policy: Any = None
+    replay = None
+    if controller == "acc":
+        policy = AccController()
+    elif controller == "hdm":
+        policy = HumanDriverModel(seed=seed)  # errors seeded from the episode seed
+    elif controller == "human-file":
+        if human_file is None:
+            raise click.UsageError("--controller human-file needs --human-file PATH")
+        try:
+            replay = read_human_file(human_file)
+            replay.check(scenario=scenario, trajectory=trajectory, seed=seed)
+        except ClientError as exc:
+            raise click.ClickException(str(exc)) from None
+        duration = replay.header.duration if duration is None else duration
+        policy = HumanFileController(replay, pad)
+    elif controller == "keyboard":
+        try:
+            require_pygame()  # fail before a server is spawned
+        except ClientError as exc:
+            raise click.ClickException(str(exc)) from None
+        if server is not None:
+            click.echo("note: --server given: start it with 'vacc serve --realtime' to drive at wall-clock speed", err=True)
+    else:
+        raise click.UsageError(f"--controller {controller} is not available yet in this version")
+    live = controller == "keyboard"
+    realtime = live if realtime is None else realtime
     trace = None
     if trajectory not in TEST_TRAJECTORIES:
         try:
             trace = load_trace(trajectory)
         except ClientError as exc:
             raise click.BadParameter(str(exc), param_hint="--trajectory") from None
-    server_args = ["--faults", server_faults] if server_faults else []
+    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
+    image_format = "rgb" if live else "none"
     try:
-        with server_address(server, *server_args) as addr, Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}") as session:
+        with (
+            server_address(server, *server_args) as addr,
+            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=LIVE_IMAGE) as session,
+            contextlib.ExitStack() as stack,
+        ):
+            period = float(session.welcome["control_period"]) if session.welcome else 0.1
+            if replay is not None:
+                replay.check(scenario=scenario, trajectory=trajectory, seed=seed, control_period=period)
+            if live:
+                window = DrivingWindow(scale=window_scale)
+                stack.callback(window.close)
+                policy = KeyboardController(period, window, joystick=None if joystick < 0 else joystick, joystick_map=joystick_map)
+            if record_path is not None:
+                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration)
+                recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
+                policy = RecordingController(policy, recorder)
             summary = drive_episode(
                 session, policy, scenario=scenario, seed=seed, trajectory=trajectory, trace=trace,
                 duration=duration, log=Path(log_path),
@@ -107,7 +185,9 @@ def drive(
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
     if not quiet:
-        click.echo(f"{controller} on {scenario}/{trajectory if trace is None else Path(trajectory).name} (seed {seed}) -> {log_path}")
+        if record_path is not None:
+            click.echo(f"human-file -> {record_path}")
+        click.echo(f"{HDM_NAME if controller == 'hdm' else controller} on {scenario}/{trajectory if trace is None else Path(trajectory).name} (seed {seed}) -> {log_path}")
         for line in summary.lines():
             click.echo("  " + line)
     sys.stdout.flush()

@@ -14,9 +14,13 @@ import numpy as np
 from agent_client.runlog import RunLog
 from agent_client.session import Session
 
-__all__ = ["DriveSummary", "drive_episode", "DESIRED_GAP"]
+__all__ = ["DriveSummary", "drive_episode", "DESIRED_GAP", "StopEpisode"]
 
 DESIRED_GAP = 55.0  # [m] the paper's gap target for RMSE
+
+
+class StopEpisode(Exception):
+    """Raised by a controller to end the episode early and cleanly (a human closed the window)."""
 
 
 @dataclass(frozen=True)
@@ -63,7 +67,9 @@ def drive_episode(
 ) -> DriveSummary:
     """Reset, then step ``controller`` until the episode ends.
 
-    The log is written row by row, so an interrupted run keeps what it drove.
+    The log is written row by row, so an interrupted run keeps what it drove. A
+    controller may raise :class:`StopEpisode` to end the episode early; the summary's
+    ``reason`` is then "".
 
     Raises:
         SessionError, FatalSessionError: from the session.
@@ -84,7 +90,11 @@ def drive_episode(
                 on_step(obs)
             if obs["terminated"] or obs["truncated"]:
                 break
-            obs = session.step(controller(obs))
+            try:
+                action = controller(obs)
+            except StopEpisode:
+                break  # the log keeps the rows so far; the summary's end reads "stopped"
+            obs = session.step(action)
     g = np.array(gaps)
     return DriveSummary(
         steps=len(gaps) - 1,
