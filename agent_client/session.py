@@ -30,7 +30,7 @@ from protocol.transport import Endpoint
 __all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
 
 RETRY_INITIAL = 0.02  # [s] first re-send timeout before any round trip is measured
-RETRY_MIN = 0.004  # [s] floor of the adaptive re-send timeout
+RETRY_MIN = 0.002  # [s] floor of the adaptive re-send timeout
 RETRY_MAX = 0.5  # [s] re-send interval cap (doubling backoff)
 GIVE_UP = 5.0  # [s] without the expected reply, the session is declared lost
 

@@ -94,6 +94,14 @@ class Endpoint:
             rejection (counted in :attr:`rejected` by reason), or neither while a
             fragmented message is incomplete.
         """
+        sender = self._sender
+        if sender is not None:
+            sender.flush()
+            due = sender.next_due()
+            if due is not None:
+                # Wake up in time to release a delayed datagram.
+                wait = max(0.0, due - time.monotonic())
+                timeout = wait if timeout is None else min(timeout, wait)
         self.sock.settimeout(timeout)
         try:
             datagram, addr = self.sock.recvfrom(MAX_DATAGRAM + 1)

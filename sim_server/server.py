@@ -77,7 +77,7 @@ class SimServer:
         self.world = World(config.world, salt=config.seed)
         self.session: _Session | None = None
         self.stats: Counter[str] = Counter()
-        self._running = False
+        self._stopped = False  # set by stop(), even before serve() starts
 
     def __enter__(self) -> SimServer:
         return self
@@ -91,18 +91,18 @@ class SimServer:
 
     def stop(self) -> None:
         """Ask :meth:`serve` to return after the current datagram."""
-        self._running = False
+        self._stopped = True
 
     def stats_line(self) -> str:
         """Counters of served and rejected datagrams, for the log at close."""
         counts = self.stats + Counter({f"rejected.{k}": v for k, v in self.endpoint.rejected.items()})
+        counts["reassembly_evicted"] = self.endpoint.reassembler.evicted
         return " ".join(f"{k}={v}" for k, v in sorted(counts.items())) or "idle"
 
     def serve(self, max_seconds: float | None = None) -> None:
         """Answer requests until :meth:`stop` or ``max_seconds`` have passed."""
-        self._running = True
         deadline = None if max_seconds is None else time.monotonic() + max_seconds
-        while self._running:
+        while not self._stopped:
             now = time.monotonic()
             if deadline is not None and now >= deadline:
                 break

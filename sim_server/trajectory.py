@@ -215,9 +215,15 @@ def build(
             return ice_trajectory(a, w, RANDOM_DURATION, dt)
         return _random_ev_window(rng, RANDOM_DURATION, dt)
     if trajectory in ICE_TEST_PARAMS:
-        if scenario == "ice":
-            signs, freqs = ICE_TEST_PARAMS[trajectory]
-            return ice_trajectory(np.array(signs, float), np.array(freqs, float), TEST_DURATION, dt)
-        name, start = EV_TEST_WINDOWS[trajectory]
-        return ev_window(name, start, TEST_DURATION, dt)
+        return _test_trajectory(scenario, trajectory, dt).copy()
     raise TrajectoryError(f"unknown trajectory {trajectory!r}; expected test-1..test-4, random or trace")
+
+
+@lru_cache(maxsize=16)
+def _test_trajectory(scenario: str, trajectory: str, dt: float) -> np.ndarray:
+    # Fixed trajectories are built once per process: resets stay fast.
+    if scenario == "ice":
+        signs, freqs = ICE_TEST_PARAMS[trajectory]
+        return ice_trajectory(np.array(signs, float), np.array(freqs, float), TEST_DURATION, dt)
+    name, start = EV_TEST_WINDOWS[trajectory]
+    return ev_window(name, start, TEST_DURATION, dt)

@@ -36,3 +36,36 @@ def test_rates_are_applied_and_seeded():
     finally:
         rx.close()
         tx.close()
+
+
+def test_delay_holds_datagrams_then_releases_them():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s = FaultySender(tx, FaultConfig(delay=1.0, delay_s=0.05, seed=1))
+        for i in range(20):
+            s.sendto(bytes([i]), rx.getsockname())
+        assert s.counts["delayed"] == 20 and s.counts["sent"] == 0
+        assert s.next_due() is not None
+        import time
+
+        time.sleep(0.06)
+        s.flush()
+        assert s.counts["sent"] == 20 and s.next_due() is None
+        got = set()
+        while True:
+            try:
+                got.add(rx.recv(10)[0])
+            except BlockingIOError:
+                break
+        assert got == set(range(20))
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_delay_s_is_checked():
+    with pytest.raises(ValueError, match="delay_s"):
+        FaultConfig(delay_s=-1.0)
