@@ -212,8 +212,9 @@ def _make_template(kind: str, lod: bool = False) -> _CarTemplate:
             index.append([o + c for c in _FACE_NEAR])
             faces.append(("under", None))
             continue
-        sides = ((_FACE_LEFT, "left", ("left", x0)), (_FACE_RIGHT, "right", ("right", x1)),
-                 (_FACE_TOP, "top", ("top", y1)))
+        sides: tuple[tuple[tuple[int, ...], str, tuple[str, float]], ...] = (
+            (_FACE_LEFT, "left", ("left", x0)), (_FACE_RIGHT, "right", ("right", x1)),
+            (_FACE_TOP, "top", ("top", y1)))
         if lod and name == "cabin":
             sides = ()
         for face, role, cond in (*sides, (_FACE_NEAR, "near", None)):
@@ -335,6 +336,84 @@ def _inset(poly: np.ndarray, d: float = AA_INSET) -> np.ndarray:
     return out
 
 
+def _sweep_pattern(a: float, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which corners make up :func:`_swept_rect` for a sweep with the signs of ``(a, b)``.
+
+    Returns ``(ix, iz, moved)``, 6 entries each: the hexagon's point ``k`` is
+    ``(x[ix[k]] + moved[k] a, z[iz[k]] + moved[k] b)`` with ``x = (x0, x1)`` and
+    ``z = (z0, z1)``. The pattern depends only on the signs, so one pattern serves
+    every box of a frame (all heights are positive).
+    """
+    corners = ((0, 0), (1, 0), (1, 1), (0, 1))
+    leads = (-b > 0, a > 0, b > 0, -a > 0)
+    pts: list[tuple[int, int, int]] = []
+    for i, (x, z) in enumerate(corners):
+        prev_lead, next_lead = leads[i - 1], leads[i]
+        if not prev_lead:
+            pts.append((x, z, 0))
+        if prev_lead or next_lead:
+            pts.append((x, z, 1))
+        if prev_lead and not next_lead:
+            pts.append((x, z, 0))
+    pts += [pts[-1]] * (6 - len(pts))
+    ix, iz, mv = (np.array(c) for c in zip(*pts, strict=True))
+    return ix, iz, mv.astype(np.float64)
+
+
+def _swept_many(x0: np.ndarray, x1: np.ndarray, z0: np.ndarray, z1: np.ndarray, a: np.ndarray,
+                b: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """:func:`_swept_rect` for many boxes at once: ``(N, 6, 3)`` ground points (Y = 0)."""
+    ix, iz, mv = pattern
+    out = np.zeros((len(x0), 6, 3))
+    out[:, :, 0] = np.where(ix, x1[:, None], x0[:, None]) + mv * a[:, None]
+    out[:, :, 2] = np.where(iz, z1[:, None], z0[:, None]) + mv * b[:, None]
+    return out
+
+
+def _inset_many(poly: np.ndarray, d: float = AA_INSET) -> np.ndarray:
+    """:func:`_inset` for a stack of convex polygons ``(N, n, 2)`` [px]."""
+    x, y = poly[..., 0], poly[..., 1]
+    xr, yr = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    area2 = np.sum(x * yr - xr * y, axis=-1)
+    n = np.stack([y - yr, xr - x], -1) * np.where(area2 > 0, 1.0, -1.0)[:, None, None]
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    n_prev = np.roll(n, 1, axis=-2)
+    denom = np.maximum(1.0 + np.sum(n * n_prev, axis=-1, keepdims=True), 0.2)
+    out = poly + d * (n + n_prev) / denom
+    xo, yo = out[..., 0], out[..., 1]
+    area2_out = np.sum(xo * np.roll(yo, -1, axis=-1) - np.roll(xo, -1, axis=-1) * yo, axis=-1)
+    bad = area2_out * area2 <= 0  # thinner than the AA fringe: fall back to per-axis shrink
+    if bad.any():
+        out[bad] = _shrink(poly[bad])
+    return out
+
+
+def _fill_batched(img: np.ndarray, polys: np.ndarray, color: float | tuple, line: int) -> None:
+    """Fill fixed-point polygons ``(N, k, 2)`` of one colour with as few cv2 calls as possible.
+
+    ``cv2.fillPoly`` fills by the even-odd rule, so only polygons whose bounding
+    boxes overlap no other go into the one batched call; the rest are drawn alone.
+    """
+    n = len(polys)
+    if n == 0:
+        return
+    if n == 1:
+        cv2.fillConvexPoly(img, polys[0], color, line, SHIFT)
+        return
+    lo = polys.min(axis=1)
+    hi = polys.max(axis=1)
+    pad = ONE + 2 if line == AA else 2  # the anti-aliased fringe reaches beyond the outline
+    ov = ((lo[:, None, :] <= hi[None, :, :] + pad) & (lo[None, :, :] <= hi[:, None, :] + pad)).all(axis=2)
+    alone = ov.sum(axis=1) == 1
+    if alone.all():
+        cv2.fillPoly(img, list(polys), color, line, SHIFT)
+        return
+    if alone.any():
+        cv2.fillPoly(img, list(polys[alone]), color, line, SHIFT)
+    for p in polys[~alone]:
+        cv2.fillConvexPoly(img, p, color, line, SHIFT)
+
+
 class Renderer:
     """Renders :class:`~sim_server.scene.SceneState` snapshots to RGB images.
 
@@ -355,8 +434,10 @@ class Renderer:
         self.config = config or CameraConfig()
         self.scenery = scenery
         self.car_detail = car_detail
-        self._bg: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._static: dict[int, np.ndarray] = {}
+        self._sky_cache: dict[int, np.ndarray] = {}
+        self._pattern: dict[tuple[float, float], tuple] = {}
+        self._win: tuple | None = None
+        self._win_key: tuple | None = None
         self._scenery = sc.SceneryCache()
         self._face_cache: dict[tuple, list] = {}
         cfg = self.config
@@ -368,64 +449,49 @@ class Renderer:
         self._horizon = cfg.vanishing_point[1]
         # smallest ground depth in view: below this the road is under the image
         self._z_ground_min = max(cfg.near, 0.5)
+        # first row that holds only ground (pure haze at the horizon): rows above it are
+        # sky and hills (per seed), rows from it down come from the ground layers
+        self._g0 = min(max(int(math.floor(self._horizon)), 0), cfg.height)
 
     # ------------------------------------------------------------------ background
-    def _static_layer(self, seed: int) -> np.ndarray:
-        """Sky, hills, grass, road, median and solid lines (no dashes), hazed."""
-        key = seed if self.scenery else -1
-        if key in self._static:
-            return self._static[key]
+    def _sky_gradient(self) -> np.ndarray:
+        """A full frame of the sky gradient (rows by ray elevation)."""
         cfg = self.config
-        W, H = cfg.width, cfg.height
-        f = self._f
-        rows = np.arange(H, dtype=np.float64)
-        elev = np.arctan((self._cy - rows) / f) - cfg.pitch  # [rad] ray elevation per row
-        img = np.empty((H, W, 3), np.float32)
+        rows = np.arange(cfg.height, dtype=np.float64)
+        elev = np.arctan((self._cy - rows) / self._f) - cfg.pitch  # [rad] ray elevation per row
         t = np.clip(elev / 0.45, 0.0, 1.0)[:, None]
-        sky = sc.SKY_HORIZON * (1 - t) + sc.SKY_TOP * t
-        img[:] = sky[:, None, :]
-        img = img.astype(np.uint8)
-        ground_row0 = int(math.floor(self._horizon))  # first row that may hold ground
-        if self.scenery:
-            prof = sc.hills_profile(seed)
-            n = len(prof)
-            us = np.linspace(-2, W + 2, n)
-            vs = self._horizon - f * np.tan(prof)
-            poly = np.concatenate([np.stack([us, vs], 1), [[W + 2, self._horizon + 1], [-2, self._horizon + 1]]])
-            hill = tuple(float(0.55 * c + 0.45 * h) for c, h in zip(sc.HILLS, sc.HAZE, strict=True))
-            cv2.fillPoly(img, [_fix(poly)], hill, AA, SHIFT)
-        g0 = max(ground_row0, 0)
-        img[g0:] = np.array(sc.GRASS, np.uint8)
-        if ground_row0 >= 0 and ground_row0 < H:  # horizon row: partial coverage of grass
-            a = float(np.clip(ground_row0 + 0.5 - self._horizon, 0.0, 1.0))
-            img[ground_row0] = (img[max(ground_row0 - 1, 0)] * (1 - a) + np.array(sc.GRASS) * a).astype(np.uint8)
+        sky = (sc.SKY_HORIZON * (1 - t) + sc.SKY_TOP * t).astype(np.uint8)
+        return np.ascontiguousarray(np.broadcast_to(sky[:, None, :], (cfg.height, cfg.width, 3)))
+
+    def _draw_road(self, img: np.ndarray) -> None:
+        """Both carriageways, shoulders, median, solid lines and barrier, in one projection."""
         z0, z1 = self._z_ground_min, 6000.0
-        strips = [
-            (sc.ONCOMING_EDGE_OUT - sc.SHOULDER_OUTER, sc.ONCOMING_EDGE_OUT, sc.SHOULDER),
-            (sc.ONCOMING_EDGE_OUT, sc.ONCOMING_EDGE_IN, sc.ASPHALT),
-            (sc.ONCOMING_EDGE_IN, sc.MEDIAN_R, sc.SHOULDER),
-            (sc.MEDIAN_R, sc.MEDIAN_L, sc.MEDIAN_GRASS),
-            (sc.MEDIAN_L, sc.CARRIAGEWAY_EDGE_L, sc.SHOULDER),
-            (sc.CARRIAGEWAY_EDGE_L, sc.CARRIAGEWAY_EDGE_R, sc.ASPHALT),
-            (sc.CARRIAGEWAY_EDGE_R, sc.CARRIAGEWAY_EDGE_R + sc.SHOULDER_OUTER, sc.SHOULDER),
-            # solid edge lines: yellow next to the median, white outside
-            (sc.CARRIAGEWAY_EDGE_L + 0.1, sc.CARRIAGEWAY_EDGE_L + 0.1 + sc.LINE_WIDTH, sc.YELLOW),
-            (sc.CARRIAGEWAY_EDGE_R - 0.1 - sc.LINE_WIDTH, sc.CARRIAGEWAY_EDGE_R - 0.1, sc.WHITE),
-            (sc.ONCOMING_EDGE_IN - 0.1 - sc.LINE_WIDTH, sc.ONCOMING_EDGE_IN - 0.1, sc.YELLOW),
-            (sc.ONCOMING_EDGE_OUT + 0.1, sc.ONCOMING_EDGE_OUT + 0.1 + sc.LINE_WIDTH, sc.WHITE),
-        ]
-        for x0, x1, col in strips:
-            quad = np.array([[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]])
-            cv2.fillConvexPoly(img, _fix(_inset(cfg.project(quad))), col, AA, SHIFT)
-        # median barrier: the host-facing side and the top
-        bx = sc.BARRIER_X + 0.5 * sc.BARRIER_WIDTH
+        quads = np.zeros((len(_STRIPS) + 2, 4, 3))
+        for i, (x0, x1, _) in enumerate(_STRIPS):
+            quads[i] = [[x0, 0, z0], [x1, 0, z0], [x1, 0, z1], [x0, 0, z1]]
+        bx = sc.BARRIER_X + 0.5 * sc.BARRIER_WIDTH  # median barrier: the top, then the host-facing side
         bh = sc.BARRIER_HEIGHT
-        side = np.array([[bx, 0, z0], [bx, bh, z0], [bx, bh, z1], [bx, 0, z1]])
-        top = np.array([[bx - sc.BARRIER_WIDTH, bh, z0], [bx, bh, z0], [bx, bh, z1],
-                        [bx - sc.BARRIER_WIDTH, bh, z1]])
-        cv2.fillConvexPoly(img, _fix(_inset(cfg.project(top))), tuple(0.95 * c for c in sc.CONCRETE), AA, SHIFT)
-        cv2.fillConvexPoly(img, _fix(_inset(cfg.project(side))), tuple(0.8 * c for c in sc.CONCRETE), AA, SHIFT)
+        quads[-2] = [[bx - sc.BARRIER_WIDTH, bh, z0], [bx, bh, z0], [bx, bh, z1], [bx - sc.BARRIER_WIDTH, bh, z1]]
+        quads[-1] = [[bx, 0, z0], [bx, bh, z0], [bx, bh, z1], [bx, 0, z1]]
+        fx = _fix(_inset_many(self.config.project(quads)))
+        cols = [c for _, _, c in _STRIPS] + [tuple(0.95 * c for c in sc.CONCRETE),
+                                            tuple(0.8 * c for c in sc.CONCRETE)]
+        for poly, col in zip(fx, cols, strict=True):
+            cv2.fillConvexPoly(img, poly, col, AA, SHIFT)
+
+    def _ground_static(self) -> np.ndarray:
+        """Full frame without hills or dashes: sky, grass, road, haze (once per camera)."""
+        cfg = self.config
+        H = cfg.height
+        img = self._sky_gradient()
+        g0 = self._g0
+        img[g0:] = np.array(sc.GRASS, np.uint8)
+        if 0 <= g0 < H and math.floor(self._horizon) == g0:  # horizon row: partial grass
+            a = float(np.clip(g0 + 0.5 - self._horizon, 0.0, 1.0))
+            img[g0] = (img[max(g0 - 1, 0)] * (1 - a) + np.array(sc.GRASS) * a).astype(np.uint8)
+        self._draw_road(img)
         # haze: every ground row is at one depth (no roll), so fog per row is exact
+        rows = np.arange(H, dtype=np.float64)
         below = rows - self._horizon
         with np.errstate(divide="ignore", invalid="ignore"):
             zrow = np.where(below > 0, self._ground_depth(rows), np.inf)
@@ -433,8 +499,33 @@ class Renderer:
         rs = slice(g0, H)
         blended = img[rs].astype(np.float32) * (1 - fog[rs, None, None]) + sc.HAZE * fog[rs, None, None]
         img[rs] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
-        self._static[key] = img
         return img
+
+    def _sky(self, seed: int) -> np.ndarray:
+        """Rows above the horizon: sky, hills from the seed, the road's far fringe.
+
+        The only per-seed layer; it costs a fraction of a millisecond.
+        """
+        key = seed if self.scenery else -1
+        hit = self._sky_cache.get(key)
+        if hit is not None:
+            return hit
+        cfg = self.config
+        img = self._sky_gradient()
+        if self.scenery:
+            W, f = cfg.width, self._f
+            prof = sc.hills_profile(seed)
+            us = np.linspace(-2, W + 2, len(prof))
+            vs = self._horizon - f * np.tan(prof)
+            poly = np.concatenate([np.stack([us, vs], 1), [[W + 2, self._horizon + 1], [-2, self._horizon + 1]]])
+            hill = tuple(float(0.55 * c + 0.45 * h) for c, h in zip(sc.HILLS, sc.HAZE, strict=True))
+            cv2.fillPoly(img, [_fix(poly)], hill, AA, SHIFT)
+        self._draw_road(img)  # its anti-aliased far end reaches a row above the horizon
+        sky = img[:self._g0].copy()
+        if len(self._sky_cache) >= 4:
+            self._sky_cache.clear()
+        self._sky_cache[key] = sky
+        return sky
 
     def _ground_depth(self, v: np.ndarray) -> np.ndarray:
         """Depth Z [m] of the road point seen at image row ``v`` (below the horizon)."""
@@ -442,37 +533,45 @@ class Renderer:
         a = np.arctan((v - self._cy) / self._f) + cfg.pitch  # [rad] angle below horizontal
         return cfg.mount_height / np.tan(a)
 
-    def _background(self, seed: int, bucket: int) -> tuple[np.ndarray, np.ndarray]:
-        """Background and its shadowed twin for one dash-phase bucket (cached)."""
-        key = (seed if self.scenery else -1, bucket)
-        hit = self._bg.get(key)
+    def _background(self, bucket: int) -> tuple[np.ndarray, np.ndarray]:
+        """Ground rows (from the horizon down) and their shadowed twin for one dash phase.
+
+        They do not depend on the seed, so they are built once per camera
+        configuration and shared by all renderers in the process.
+        """
+        layers = _GROUND_CACHE.get(self.config)
+        if layers is None:
+            if len(_GROUND_CACHE) >= 4:
+                _GROUND_CACHE.clear()
+            layers = _GROUND_CACHE[self.config] = {-1: (self._ground_static(), np.empty(0, np.uint8))}
+        hit = layers.get(bucket)
         if hit is not None:
             return hit
-        if len(self._bg) >= 2 * PHASE_BUCKETS:  # a new seed: drop the old one's layers
-            self._bg.clear()
-            self._static.clear()
         cfg = self.config
-        img = self._static_layer(seed).copy()
+        img = layers[-1][0].copy()
         phase = bucket * sc.DASH_PERIOD / PHASE_BUCKETS  # [m] camera position within a period
+        za = np.arange(0.0, cfg.far + sc.DASH_PERIOD + 1.0, sc.DASH_PERIOD) - phase
+        za = za[za <= cfg.far]
+        zb = za + sc.DASH_LENGTH
+        keep = zb >= self._z_ground_min
+        za, zb = np.maximum(za[keep], self._z_ground_min), zb[keep]
+        fog = 1.0 - np.exp(-0.5 * (za + zb) / sc.FOG_DISTANCE)
+        cols = (np.array(sc.WHITE) * (1 - fog[:, None]) + sc.HAZE.astype(np.float64) * fog[:, None]).tolist()
         hw = 0.5 * sc.LINE_WIDTH
-        k0 = 0
-        while True:
-            za = k0 * sc.DASH_PERIOD - phase
-            if za > cfg.far:
-                break
-            zb = za + sc.DASH_LENGTH
-            k0 += 1
-            if zb < self._z_ground_min:
-                continue
-            za = max(za, self._z_ground_min)
-            fog = 1.0 - math.exp(-0.5 * (za + zb) / sc.FOG_DISTANCE)
-            col = tuple(float(c * (1 - fog) + h * fog) for c, h in zip(sc.WHITE, sc.HAZE, strict=True))
-            for x in sc.DASH_X:
-                quad = np.array([[x - hw, 0, za], [x + hw, 0, za], [x + hw, 0, zb], [x - hw, 0, zb]])
-                cv2.fillConvexPoly(img, _fix(_inset(cfg.project(quad))), col, AA, SHIFT)
-        dark = cv2.convertScaleAbs(img, alpha=SHADOW_FACTOR)
-        self._bg[key] = (img, dark)
-        return img, dark
+        n, m = len(za), len(sc.DASH_X)
+        quads = np.zeros((n, m, 4, 3))
+        xs = np.array(sc.DASH_X)[None, :, None]
+        quads[..., 0] = xs + np.array([-hw, hw, hw, -hw])
+        quads[..., 2] = np.stack([za, za, zb, zb], 1)[:, None, :]
+        fx = _fix(_inset_many(cfg.project(quads.reshape(n * m, 4, 3)))).reshape(n, m, 4, 2)
+        for k in range(n):
+            col = tuple(cols[k])
+            for poly in fx[k]:
+                cv2.fillConvexPoly(img, poly, col, AA, SHIFT)
+        ground = img[self._g0:].copy()
+        hit = (ground, cv2.convertScaleAbs(ground, alpha=SHADOW_FACTOR))
+        layers[bucket] = hit
+        return hit
 
     # ---------------------------------------------------------------------- frame
     def _proj(self, p: np.ndarray) -> np.ndarray:
@@ -503,14 +602,23 @@ class Renderer:
         s_cam = scene.host_s - cfg.setback  # [m] camera position along the road
         phase = s_cam % sc.DASH_PERIOD
         bucket = int(phase / sc.DASH_PERIOD * PHASE_BUCKETS) % PHASE_BUCKETS
-        bg, dark = self._background(scene.scenery_seed, bucket)
-        img = bg.copy()
+        ground, dark = self._background(bucket)
+        g0 = self._g0
+        img = np.empty((cfg.height, cfg.width, 3), np.uint8)
+        if g0 > 0:
+            img[:g0] = self._sky(scene.scenery_seed)
+        img[g0:] = ground
 
         el = max(scene.light_elevation, MIN_SUN_ELEVATION)
         az = scene.light_azimuth
         light = (math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el))
         # ground displacement of a shadow per metre of height [m/m]
         sh = (-math.sin(az) / math.tan(el), -math.cos(az) / math.tan(el))
+        pattern = self._pattern.get(sh)
+        if pattern is None:
+            if len(self._pattern) > 64:
+                self._pattern.clear()
+            pattern = self._pattern[sh] = _sweep_pattern(*sh)
 
         lead = scene.lead
         cars = []
@@ -521,103 +629,95 @@ class Renderer:
             if z_near < cfg.near or z_near > cfg.far:
                 continue  # beside or behind the camera: outside the field of view
             cars.append((z_near, x_c, oncoming, car, car is lead))
+        cars.sort(key=lambda c: -c[0])  # far to near
 
         # 1. shadows on the ground (nothing stands on the ground in front of them)
-        shadow_mask = np.zeros((cfg.height, cfg.width), np.uint8)
-        rows = [cfg.height, -1]  # row span touched in the shadow mask
-        trees = blds = None
+        hard: list[np.ndarray] = []  # (N, 6, 2) fixed-point hexagons, hard-edged
+        extra: list[np.ndarray] = []  # near-clipped polygons of other sizes (rare)
+        view = None
         if self.scenery:
-            batch = self._scenery.window(scene.scenery_seed, s_cam, s_cam + SCENERY_FAR)
-            trees, blds = self._scenery_items(batch, s_cam)
-            self._scenery_shadows(shadow_mask, rows, trees, blds, sh)
-        polys = self._car_shadows(cars, sh)
-        for i, poly in enumerate(polys):
-            if poly is None or cars[i][4]:
-                continue
-            cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
-            self._span(rows, poly)
-        if rows[1] >= rows[0]:
-            r = slice(max(rows[0], 0), min(rows[1] + 1, cfg.height))
-            cv2.copyTo(dark[r], shadow_mask[r], img[r])
-        for i, item in enumerate(cars):
-            if item[4]:
-                self._soft_shadow(img, polys[i])
+            view = self._scenery_view(scene.scenery_seed, s_cam, light, sh, pattern)
+            hard.append(view[2])
+            extra += view[3]
+        soft = None
+        if cars:
+            fx, ok, clipped, soft = self._car_shadows(cars, sh, pattern)
+            hard.append(fx[ok])
+            extra += clipped
+        polys = np.concatenate(hard) if len(hard) > 1 else (hard[0] if hard else np.zeros((0, 6, 2), np.int32))
+        if len(polys) or extra:
+            shadow_mask = np.zeros((cfg.height, cfg.width), np.uint8)
+            y0, y1 = cfg.height, -1
+            if len(polys):
+                ys = polys[:, :, 1]
+                y0, y1 = int(ys.min()) >> SHIFT, (int(ys.max()) >> SHIFT) + 1
+                _fill_batched(shadow_mask, polys, 255, cv2.LINE_8)
+            for poly in extra:
+                cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
+                y0 = min(y0, int(poly[:, 1].min()) >> SHIFT)
+                y1 = max(y1, (int(poly[:, 1].max()) >> SHIFT) + 1)
+            r0, r1 = max(y0, g0), min(y1 + 1, cfg.height)
+            if r1 > r0:
+                cv2.copyTo(dark[r0 - g0:r1 - g0], shadow_mask[r0:r1], img[r0:r1])
+        if soft is not None:
+            self._soft_shadow(img, soft)
 
-        # 2. buildings (always outside the trees and the road, so never in front)
-        if blds is not None and len(blds[0]):
-            self._draw_buildings(img, blds, light)
-        # 3. trees and cars, far to near
-        order: list[tuple[float, int, int]] = [(c[0], 1, i) for i, c in enumerate(cars)]
-        tree_draw = None
-        if trees is not None and len(trees[0]):
-            tree_draw = self._tree_geometry(trees, light)
-            order += [(z, 0, i) for i, z in enumerate(trees[0].tolist())]
-        order.sort(key=lambda t: (-t[0], t[1], t[2]))
-        car_draw = self._car_geometry(cars, light) if cars else []
-        for _, kind, i in order:
-            if kind == 0:
-                self._draw_tree(img, tree_draw, i)
-            else:
-                fq, faces = car_draw[i]
+        # 2. buildings, then trees far to near: they stand beside the road, farther out
+        # than any car, so they never hide a car (a car may hide them)
+        if view is not None:
+            if view[0] is not None:
+                self._draw_buildings(img, view[0], light)
+            if view[1] is not None:
+                self._draw_trees(img, view[1])
+        # 3. cars, far to near
+        if cars:
+            for fq, faces in self._car_geometry(cars, light):
                 for j, col in faces:
                     cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
         return img
 
-    @staticmethod
-    def _span(rows: list[int], poly: np.ndarray) -> None:
-        ys = poly[:, 1]
-        rows[0] = min(rows[0], int(ys.min()) >> SHIFT)
-        rows[1] = max(rows[1], (int(ys.max()) >> SHIFT) + 1)
-
     # ------------------------------------------------------------------- shadows
-    def _ground_poly(self, pts_xz: np.ndarray) -> np.ndarray | None:
-        """Convex hull of ground points ``(N, 2)`` (X, Z), near-clipped, in fixed point."""
-        hull = cv2.convexHull(pts_xz.astype(np.float32))[:, 0, :].astype(np.float64)
-        p3 = np.zeros((len(hull), 3))
-        p3[:, 0] = hull[:, 0]
-        p3[:, 2] = hull[:, 1]
-        p3 = _clip_near(p3, self._z_ground_min)
-        if len(p3) < 3:
-            return None
-        return _fix(self._proj(p3))
-
-    def _car_shadows(self, cars: list, sh: tuple[float, float]) -> list[np.ndarray | None]:
-        """Ground shadows of the cars' boxes as fixed-point polygons (None: not in view).
+    def _car_shadows(self, cars: list, sh: tuple[float, float], pattern: tuple) -> tuple:
+        """Ground shadows of the cars' boxes in fixed point.
 
         The shadow of a box on the ground is its footprint swept along the sun's
-        ground displacement: a hexagon, built here without a hull computation. The
-        lead's polygon is shrunk for an anti-aliased fill, the others for LINE_8.
+        ground displacement: a hexagon, built here for all cars at once. Returns
+        ``(fx, ok, clipped, soft)``: the hexagons ``(N, 6, 2)`` of the traffic,
+        which of them to draw, near-clipped polygons of the rest, and the lead's
+        polygon (shrunk for an anti-aliased fill) or None.
         """
-        hexes: list[list[tuple[float, float]]] = []
-        for z_near, x_c, _, car, _ in cars:
-            w2 = 0.5 * car.width
-            hgt = 0.92 * car.height  # the cabin is narrower than the footprint
-            hexes.append(_swept_rect(x_c - w2, x_c + w2, z_near, z_near + car.length,
-                                     sh[0] * hgt, sh[1] * hgt))
-        if not hexes:
-            return []
-        g = np.zeros((len(hexes), 6, 3))
-        g[:, :, 0::2] = hexes
+        n = len(cars)
+        a = np.empty((5, n))
+        for i, (z_near, x_c, _, car, _) in enumerate(cars):
+            a[:, i] = (x_c - 0.5 * car.width, z_near, car.width, car.length, 0.92 * car.height)
+        x0, z0, w, ln, hgt = a  # 0.92: the cabin is narrower than the footprint
+        g = _swept_many(x0, x0 + w, z0, z0 + ln, sh[0] * hgt, sh[1] * hgt, pattern)
         ok = g[:, :, 2].min(axis=1) >= self._z_ground_min
         uv = self._proj(np.where(ok[:, None, None], g, 1.0))
-        d = np.array([AA_INSET if c[4] else 0.5 for c in cars])
+        lead = np.array([c[4] for c in cars])
+        d = np.where(lead, AA_INSET, 0.5)
         c = uv.sum(axis=1, keepdims=True)
         c *= 1.0 / 6.0
         r = uv - c
         fx = _fix(c + np.copysign(np.maximum(np.abs(r) - d[:, None, None], 0.0), r))
-        out: list[np.ndarray | None] = []
-        for i in range(len(cars)):
+        soft = None
+        clipped = []
+        for i in np.nonzero(lead | ~ok)[0].tolist():
             if ok[i]:
-                out.append(fx[i])
-                continue
-            p3 = _clip_near(g[i], self._z_ground_min)  # rare: a shadow reaching under the camera
-            out.append(_fix(_shrink(self._proj(p3), float(d[i]))) if len(p3) >= 3 else None)
-        return out
+                poly = fx[i]
+            else:  # rare: a shadow reaching under the camera
+                p3 = _clip_near(g[i], self._z_ground_min)
+                if len(p3) < 3:
+                    continue
+                poly = _fix(_shrink(self._proj(p3), float(d[i])))
+            if lead[i]:
+                soft = poly
+            else:
+                clipped.append(poly)
+        return fx, ok & ~lead, clipped, soft
 
-    def _soft_shadow(self, img: np.ndarray, poly: np.ndarray | None) -> None:
+    def _soft_shadow(self, img: np.ndarray, poly: np.ndarray) -> None:
         """Darken the ground under ``poly`` with anti-aliased edges (the lead car's)."""
-        if poly is None:
-            return
         H, W = img.shape[:2]
         x0 = max((int(poly[:, 0].min()) >> SHIFT) - 1, 0)
         x1 = min((int(poly[:, 0].max()) >> SHIFT) + 2, W)
@@ -632,57 +732,95 @@ class Renderer:
         roi = img[y0:y1, x0:x1]
         cv2.multiply(roi, cv2.cvtColor(fac, cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
 
-    def _scenery_items(self, b: sc.SceneryBatch, s_cam: float) -> tuple[tuple, tuple]:
-        """Visible trees and buildings, each sorted far to near, with depths [m]."""
-        zt = b.tree_s - s_cam
-        idx = np.nonzero((zt > 4.0) & (zt < SCENERY_FAR))[0]
-        idx = idx[np.argsort(-zt[idx], kind="stable")]
-        trees = (zt[idx], b.tree_x[idx], b.tree_h[idx], b.tree_r[idx], b.tree_rgb[idx])
-        zb = b.bld_s - s_cam
-        idx = np.nonzero((zb + b.bld_len > 4.0) & (zb < SCENERY_FAR))[0]
-        idx = idx[np.argsort(-zb[idx], kind="stable")]
-        blds = (zb[idx], b.bld_x[idx], b.bld_len[idx], b.bld_depth[idx], b.bld_h[idx], b.bld_rgb[idx])
-        return trees, blds
+    def _scenery_window(self, seed: int, s_cam: float, light: tuple, sh: tuple) -> tuple:
+        """The scenery near the road ahead, sorted far to near, with its light-dependent parts.
 
-    def _scenery_shadows(self, mask: np.ndarray, rows: list[int], trees: tuple, blds: tuple,
-                         sh: tuple[float, float]) -> None:
-        z, x, th, r = trees[0], trees[1], trees[2], trees[3]
-        yc = th + 0.8 * r  # [m] crown centre height
-        gx = x + sh[0] * yc
-        gz = z + sh[1] * yc
-        keep = (z < SHADOW_FAR) & (gz - r > self._z_ground_min)
-        if keep.any():
-            n = int(keep.sum())
-            p = np.zeros((n, 6, 3))
-            p[:, :, 0] = gx[keep, None] + r[keep, None] * _HEX_COS
-            p[:, :, 2] = gz[keep, None] + r[keep, None] * _HEX_SIN
-            fx = _fix(self._proj(p))
-            for poly in fx:
-                cv2.fillConvexPoly(mask, poly, 255, cv2.LINE_8, SHIFT)
-            rows[0] = min(rows[0], int(fx[:, :, 1].min()) >> SHIFT)
-            rows[1] = max(rows[1], (int(fx[:, :, 1].max()) >> SHIFT) + 1)
-        zb, xb, ln, dp, hb = blds[0], blds[1], blds[2], blds[3], blds[4]
-        hexes = []
-        for i in range(len(zb)):
-            if zb[i] > SHADOW_FAR:
-                continue
-            xa, xc = sorted((float(xb[i]), float(xb[i] + (dp[i] if xb[i] > 0 else -dp[i]))))
-            hexes.append(_swept_rect(xa, xc, float(zb[i]), float(zb[i] + ln[i]),
-                                     sh[0] * float(hb[i]), sh[1] * float(hb[i])))
-        if not hexes:
-            return
-        g = np.zeros((len(hexes), 6, 3))
-        g[:, :, 0::2] = hexes
-        for poly in g:
-            if poly[:, 2].min() < self._z_ground_min:  # reaches beside the camera: clip
-                p3 = _clip_near(poly, self._z_ground_min)
-                if len(p3) < 3:
-                    continue
-                fx = _fix(self._proj(p3))
-            else:
-                fx = _fix(self._proj(poly))
-            cv2.fillConvexPoly(mask, fx, 255, cv2.LINE_8, SHIFT)
-            self._span(rows, fx)
+        Cached until the camera enters a new road tile or the light changes: tree
+        points ``(n, 12, 3)`` (trunk quad, crown centre, sunlit spot, shadow hexagon)
+        with ``Z`` holding the road position ``s``.
+        """
+        batch = self._scenery.window(seed, s_cam, s_cam + SCENERY_FAR)
+        key = (batch, light)  # holding the batch keeps its identity unique
+        if self._win is not None and self._win_key is not None and self._win_key[0] is batch \
+                and self._win_key[1] == light:
+            return self._win
+        b = batch
+        o = np.argsort(-b.tree_s, kind="stable")
+        s, x, h, r, rgb = b.tree_s[o], b.tree_x[o], b.tree_h[o], b.tree_r[o], b.tree_rgb[o]
+        yc = h + 0.8 * r  # [m] crown centre height
+        n = len(s)
+        p = np.zeros((n, 12, 3))
+        p[:, 0:4, 0] = x[:, None] + np.array([-0.18, 0.18, 0.18, -0.18])
+        p[:, 2:4, 1] = yc[:, None]
+        p[:, 0:6, 2] = s[:, None]
+        p[:, 4, 0] = x
+        p[:, 4, 1] = yc
+        p[:, 5, 0] = x + 0.35 * r * float(np.clip(2 * light[0], -1, 1))  # sunlit side of the crown
+        p[:, 5, 1] = yc + 0.3 * r
+        p[:, 6:, 0] = (x + sh[0] * yc)[:, None] + r[:, None] * _HEX_COS
+        p[:, 6:, 2] = (s + sh[1] * yc)[:, None] + r[:, None] * _HEX_SIN
+        k_crown = AMBIENT + DIFFUSE * 0.1
+        k_lit = AMBIENT + DIFFUSE * (max(0.0, 0.35 - 0.65 * light[2]) + 0.3 * light[1] + 0.3)
+        crown = np.minimum(rgb * k_crown, 255)
+        lit = np.minimum(rgb * k_lit, 255)
+        trees = (s, -s, r, p, crown, lit, r - sh[1] * yc)
+        o = np.argsort(-b.bld_s, kind="stable")
+        blds = tuple(v[o] for v in (b.bld_s, b.bld_x, b.bld_len, b.bld_depth, b.bld_h, b.bld_rgb))
+        self._win = (trees, blds)
+        self._win_key = key
+        return self._win
+
+    def _scenery_view(self, seed: int, s_cam: float, light: tuple, sh: tuple, pattern: tuple) -> tuple:
+        """Visible buildings and trees (far to near) and their shadow hexagons, fixed point."""
+        trees, blds = self._scenery_window(seed, s_cam, light, sh)
+        zmin = self._z_ground_min
+        shadows = []
+        extra: list[np.ndarray] = []
+        # trees
+        s, neg_s, r, p, crown, lit, reach = trees
+        i0 = int(np.searchsorted(neg_s, -(s_cam + SCENERY_FAR), "right"))
+        i1 = int(np.searchsorted(neg_s, -(s_cam + 4.0), "left"))
+        tree_draw = None
+        if i1 > i0:
+            q = p[i0:i1].copy()
+            q[:, :, 2] -= s_cam
+            uv = self._proj(q)
+            z = s[i0:i1] - s_cam
+            keep = (z < SHADOW_FAR) & (z - reach[i0:i1] > zmin)  # shadow clear of the camera
+            uv[:, 0:4] = _shrink(uv[:, 0:4], 0.5)
+            fx = _fix(uv)
+            if keep.any():
+                shadows.append(fx[keep, 6:])
+            rad = ((np.maximum(self._f * r[i0:i1] / z - 0.5, 0.0)) * ONE).astype(np.int64)
+            fog = (1.0 - np.exp(-z / sc.FOG_DISTANCE))[:, None]
+            hz = sc.HAZE * fog
+            g = 1 - fog
+            tree_draw = (fx[:, 4:6].tolist(), rad.tolist(), fx[:, 0:4],
+                         (crown[i0:i1] * g + hz).tolist(), (lit[i0:i1] * g + hz).tolist(),
+                         (_TRUNK * g + hz).tolist())
+        # buildings
+        bs, bx, bl, bd, bh, brgb = blds
+        zb = bs - s_cam
+        vis = (zb + bl > 4.0) & (zb < SCENERY_FAR)
+        bld_draw = None
+        if vis.any():
+            zb, bx, bl, bd, bh, brgb = zb[vis], bx[vis], bl[vis], bd[vis], bh[vis], brgb[vis]
+            bld_draw = (zb, bx, bl, bd, bh, brgb)
+            near = zb <= SHADOW_FAR
+            if near.any():
+                zn, xn, dn = zb[near], bx[near], bd[near]
+                x_out = xn + np.where(xn > 0, dn, -dn)
+                hn = bh[near]
+                g6 = _swept_many(np.minimum(xn, x_out), np.maximum(xn, x_out), zn, zn + bl[near],
+                                 sh[0] * hn, sh[1] * hn, pattern)
+                ok = g6[:, :, 2].min(axis=1) >= zmin
+                shadows.append(_fix(self._proj(np.where(ok[:, None, None], g6, 1.0)))[ok])
+                for poly in g6[~ok]:  # reaches beside the camera: clip
+                    p3 = _clip_near(poly, zmin)
+                    if len(p3) >= 3:
+                        extra.append(_fix(self._proj(p3)))
+        hexes = np.concatenate(shadows) if shadows else np.zeros((0, 6, 2), np.int32)
+        return bld_draw, tree_draw, hexes, extra
 
     # ------------------------------------------------------------------- objects
     def _draw_buildings(self, img: np.ndarray, blds: tuple, light: tuple) -> None:
@@ -692,68 +830,36 @@ class Renderer:
         z0 = np.maximum(zb, self._z_ground_min)
         z1 = zb + ln
         x1 = xb + side * dp
-        p = np.zeros((n, 8 + 4 * _WINDOW_FLOORS, 3))
-        p[:, (0, 3, 4, 5, 6, 7), 0] = xb[:, None]
-        p[:, 1:3, 0] = x1[:, None]
-        p[:, (0, 1, 4, 5), 1] = 0.0
-        p[:, (2, 3, 6, 7), 1] = hb[:, None]
-        p[:, (0, 1, 2, 3, 4, 7), 2] = z0[:, None]
-        p[:, 5:7, 2] = z1[:, None]
-        for k in range(_WINDOW_FLOORS):
-            q = slice(8 + 4 * k, 12 + 4 * k)
-            p[:, q, 0] = xb[:, None]
-            p[:, q, 1] = np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k
-            p[:, q, 2] = (z0 + 1.0)[:, None]
-            p[:, 9 + 4 * k:11 + 4 * k, 2] = (z1 - 1.0)[:, None]
-        uv = self._proj(p).reshape(n, -1, 4, 2)
-        fx = _fix(_shrink(uv, 0.5).reshape(n, -1, 2))
+        p = np.empty((n, 8 + 4 * _WINDOW_FLOORS, 3))
+        p[:, :, 0] = np.where(_BLD_X1, x1[:, None], xb[:, None])
+        p[:, :, 1] = _BLD_Y + _BLD_YH * hb[:, None]
+        p[:, :, 2] = np.where(_BLD_FAR, z1[:, None], z0[:, None]) + _BLD_DZ
+        fx = _fix(_shrink(self._proj(p).reshape(n, -1, 4, 2), 0.5))
         fog = 1.0 - np.exp(-z0 / sc.FOG_DISTANCE)
+        floors = np.minimum(hb // 3.5, _WINDOW_FLOORS).astype(int).tolist()
+        zmin = self._z_ground_min
         for i in range(n):
             c_road = _shade(rgb[i], -side[i] * light[0], fog[i])
-            if zb[i] >= self._z_ground_min:
-                cv2.fillConvexPoly(img, fx[i, 0:4], _shade(rgb[i], -light[2], fog[i]), L8, SHIFT)
-            cv2.fillConvexPoly(img, fx[i, 4:8], c_road, L8, SHIFT)
-            if z0[i] < 120.0:  # window bands on the road-facing wall
+            if zb[i] >= zmin:
+                cv2.fillConvexPoly(img, fx[i, 0], _shade(rgb[i], -light[2], fog[i]), L8, SHIFT)
+            cv2.fillConvexPoly(img, fx[i, 1], c_road, L8, SHIFT)
+            k = floors[i]
+            if z0[i] < 120.0 and k:  # window bands on the road-facing wall
                 win = (0.45 * c_road[0], 0.45 * c_road[1], 0.45 * c_road[2])
-                for k in range(min(int(hb[i] // 3.5), _WINDOW_FLOORS)):
-                    cv2.fillConvexPoly(img, fx[i, 8 + 4 * k:12 + 4 * k], win, L8, SHIFT)
-
-    def _tree_geometry(self, trees: tuple, light: tuple) -> tuple:
-        """Fixed-point trunk quads, crown centres/radii and colours of all trees."""
-        z, x, th, r, rgb = trees
-        n = len(z)
-        yc = th + 0.8 * r
-        p = np.empty((n, 6, 3))
-        p[:, 0:4, 0] = x[:, None] + np.array([-0.18, 0.18, 0.18, -0.18])
-        p[:, 0:4, 1] = np.stack([0 * yc, 0 * yc, yc, yc], 1)
-        p[:, :, 2] = z[:, None]
-        p[:, 4, 0] = x
-        p[:, 4, 1] = yc
-        p[:, 5, 0] = x + 0.35 * r * np.clip(2 * light[0], -1, 1)  # sunlit side of the crown
-        p[:, 5, 1] = yc + 0.3 * r
-        uv = self._proj(p)
-        uv[:, 0:4] = _shrink(uv[:, 0:4], 0.5)
-        fx = _fix(uv)
-        rad = (np.maximum(self._f * r / z - 0.5, 0.0) * ONE).astype(np.int64)
-        fog = (1.0 - np.exp(-z / sc.FOG_DISTANCE))[:, None]
-        k_crown = AMBIENT + DIFFUSE * 0.1
-        k_lit = AMBIENT + DIFFUSE * (max(0.0, 0.35 - 0.65 * light[2]) + 0.3 * light[1] + 0.3)
-        haze = sc.HAZE[None, :]
-        crown = (np.minimum(rgb * k_crown, 255) * (1 - fog) + haze * fog).tolist()
-        lit = (np.minimum(rgb * k_lit, 255) * (1 - fog) + haze * fog).tolist()
-        trunk = (np.array([[95 * 0.62, 70 * 0.62, 45 * 0.62]]) * (1 - fog) + haze * fog).tolist()
-        return fx, rad.tolist(), crown, lit, trunk
+                cv2.fillPoly(img, list(fx[i, 2:2 + k]), win, L8, SHIFT)
 
     @staticmethod
-    def _draw_tree(img: np.ndarray, geo: tuple, i: int) -> None:
-        fx, rad, crown, lit, trunk = geo
-        if rad[i] > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
-            cv2.fillConvexPoly(img, fx[i, 0:4], trunk[i], L8, SHIFT)
-        c = fx[i, 4]
-        cv2.circle(img, (int(c[0]), int(c[1])), rad[i], crown[i], -1, L8, SHIFT)
-        if rad[i] > 5 * ONE:
-            c = fx[i, 5]
-            cv2.circle(img, (int(c[0]), int(c[1])), int(0.6 * rad[i]), lit[i], -1, L8, SHIFT)
+    def _draw_trees(img: np.ndarray, geo: tuple) -> None:
+        """Trees far to near: trunk (when it shows below the crown), crown, sunlit spot."""
+        centres, rad, trunks, crown, lit, trunk = geo
+        circle, fill = cv2.circle, cv2.fillConvexPoly
+        for i, ri in enumerate(rad):
+            if ri > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
+                fill(img, trunks[i], trunk[i], L8, SHIFT)
+            c = centres[i]
+            circle(img, c[0], ri, crown[i], -1, L8, SHIFT)
+            if ri > 5 * ONE:
+                circle(img, c[1], int(0.6 * ri), lit[i], -1, L8, SHIFT)
 
     def _car_faces(self, item: tuple, light: tuple, lod: bool) -> tuple[_CarTemplate, list]:
         """The template of a car and its visible faces as ``(face_row, colour)``.
@@ -843,4 +949,32 @@ class Renderer:
 
 _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
 _HEX_SIN = np.sin(np.linspace(0, 2 * np.pi, 7)[:-1])
+_TRUNK = np.array([95 * 0.62, 70 * 0.62, 45 * 0.62])
 _WINDOW_FLOORS = 3  # at most this many window bands per building
+# building points: near face (0-3), road-facing wall (4-7), window bands (4 per floor)
+_BLD_X1 = np.zeros(8 + 4 * _WINDOW_FLOORS, bool)  # at the far side (x1) rather than the wall
+_BLD_X1[1:3] = True
+_BLD_YH = np.zeros(8 + 4 * _WINDOW_FLOORS)  # at the roof
+_BLD_YH[[2, 3, 6, 7]] = 1.0
+_BLD_Y = np.concatenate([np.zeros(8)] + [np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k for k in range(_WINDOW_FLOORS)])
+_BLD_FAR = np.zeros(8 + 4 * _WINDOW_FLOORS, bool)  # at the far end (z1)
+_BLD_FAR[[5, 6] + [9 + 4 * k for k in range(_WINDOW_FLOORS)] + [10 + 4 * k for k in range(_WINDOW_FLOORS)]] = True
+_BLD_DZ = np.concatenate([np.zeros(8)] + [np.array([1.0, -1.0, -1.0, 1.0])] * _WINDOW_FLOORS)
+# ground strips (X from, X to, colour): shoulders, lanes, median, then the solid lines
+_STRIPS = (
+    (sc.ONCOMING_EDGE_OUT - sc.SHOULDER_OUTER, sc.ONCOMING_EDGE_OUT, sc.SHOULDER),
+    (sc.ONCOMING_EDGE_OUT, sc.ONCOMING_EDGE_IN, sc.ASPHALT),
+    (sc.ONCOMING_EDGE_IN, sc.MEDIAN_R, sc.SHOULDER),
+    (sc.MEDIAN_R, sc.MEDIAN_L, sc.MEDIAN_GRASS),
+    (sc.MEDIAN_L, sc.CARRIAGEWAY_EDGE_L, sc.SHOULDER),
+    (sc.CARRIAGEWAY_EDGE_L, sc.CARRIAGEWAY_EDGE_R, sc.ASPHALT),
+    (sc.CARRIAGEWAY_EDGE_R, sc.CARRIAGEWAY_EDGE_R + sc.SHOULDER_OUTER, sc.SHOULDER),
+    # solid edge lines: yellow next to the median, white outside
+    (sc.CARRIAGEWAY_EDGE_L + 0.1, sc.CARRIAGEWAY_EDGE_L + 0.1 + sc.LINE_WIDTH, sc.YELLOW),
+    (sc.CARRIAGEWAY_EDGE_R - 0.1 - sc.LINE_WIDTH, sc.CARRIAGEWAY_EDGE_R - 0.1, sc.WHITE),
+    (sc.ONCOMING_EDGE_IN - 0.1 - sc.LINE_WIDTH, sc.ONCOMING_EDGE_IN - 0.1, sc.YELLOW),
+    (sc.ONCOMING_EDGE_OUT + 0.1, sc.ONCOMING_EDGE_OUT + 0.1 + sc.LINE_WIDTH, sc.WHITE),
+)
+# ground layers per camera configuration: {config: {bucket: (ground, shadowed twin)}},
+# bucket -1 holding the full frame without dashes; shared by all renderers
+_GROUND_CACHE: dict[CameraConfig, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
