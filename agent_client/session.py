@@ -90,6 +90,7 @@ class Session:
         self.resends = 0  # requests re-sent after a timeout
         self._srtt: float | None = None  # [s] smoothed round trip of unrepeated requests
         self._rttvar = 0.0  # [s] its mean deviation
+        self._backoff = 0.0  # [s] re-send timeout kept from a request that needed re-sends
         self._closed = False
         self._heartbeat_seq = 0
 
@@ -259,6 +260,9 @@ class Session:
         # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
         # requests answered without a re-send update the estimate).
         wait = self.retry_initial if self._srtt is None else min(self.retry_max, max(RETRY_MIN, self._srtt + 4.0 * self._rttvar))
+        # Karn: a backed-off timeout stays until a clean sample, so a server that
+        # is slow on purpose (real-time pacing) is not flooded with re-sends.
+        wait = max(wait, self._backoff)
         resent = False
         resend_at = now + wait
         while True:
@@ -268,6 +272,7 @@ class Session:
                 reply = got.msg
                 if accept(reply):
                     if not resent:
+                        self._backoff = 0.0
                         rtt = now - sent_at
                         if self._srtt is None:
                             self._srtt, self._rttvar = rtt, rtt / 2
@@ -292,4 +297,5 @@ class Session:
                 self.resends += 1
                 resent = True
                 wait = min(wait * 2, self.retry_max)
+                self._backoff = wait
                 resend_at = now + wait

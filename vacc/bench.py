@@ -94,6 +94,67 @@ def lockstep(steps: int, reps: int, image_format: str = "none", size: tuple[int,
     return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}, "image_bytes": nbytes}
 
 
+def agent_env(steps: int, reps: int) -> dict[str, Any]:
+    """Steps/s of the Gymnasium env as the agent uses it: gray 200x200 camera over
+    UDP from a real server process, preprocessing and the 8-frame stack."""
+    from agent_client.env import VisionACCEnv
+
+    rates = []
+    env = VisionACCEnv(trajectory="random")
+    try:
+        env.reset(seed=0)
+        for rep in range(reps + 1):
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                _, _, terminated, truncated, _ = env.step(10)
+                if terminated or truncated:
+                    env.reset()
+            if rep:
+                rates.append(steps / (time.perf_counter() - t0))
+    finally:
+        env.close()
+    return {"steps_per_s": _reps(rates)}
+
+
+HIGHWAY_CONFIG = {
+    "observation": {
+        "type": "GrayscaleObservation",
+        "observation_shape": (150, 105),
+        "stack_size": 8,
+        "weights": [0.2989, 0.5870, 0.1140],
+        "scaling": 1.75,
+    },
+    "simulation_frequency": 50,  # [Hz] as our physics
+    "policy_frequency": 50,  # [Hz] one decision per simulation step
+    "offscreen_rendering": True,
+}
+
+
+def highway_peer(steps: int, reps: int) -> dict[str, Any]:
+    """Steps/s of highway-env's highway-v0 with an 8x150x105 grayscale stack at 50 Hz, in-process."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    try:
+        import gymnasium as gym
+        import highway_env  # noqa: F401 - registers highway-v0
+    except ImportError:
+        return {"error": "highway-env is not installed: pip install 'vacc[bench]' (make bench does)"}
+    env = gym.make("highway-v0", config=HIGHWAY_CONFIG)
+    rates = []
+    try:
+        env.reset(seed=0)
+        for rep in range(reps + 1):
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                _, _, terminated, truncated, _ = env.step(1)  # IDLE
+                if terminated or truncated:
+                    env.reset()
+            if rep:
+                rates.append(steps / (time.perf_counter() - t0))
+    finally:
+        env.close()
+    return {"steps_per_s": _reps(rates)}
+
+
 def render_time(frames: int, size: tuple[int, int] = (400, 400)) -> dict[str, Any]:
     """Median and p99 time to render one RGB frame in this process (one core)."""
     from sim_server.render import CameraConfig, Renderer
@@ -139,7 +200,7 @@ def _cpu() -> str:
 def run_bench(quick: bool) -> dict[str, Any]:
     steps, reps = (500, 3) if quick else (3000, 5)
     rows: dict[str, Any] = {}
-    with click.progressbar(length=5, label="bench", file=sys.stderr) as bar:
+    with click.progressbar(length=7, label="bench", file=sys.stderr) as bar:
         rows["udp_echo"] = udp_echo(steps, reps)
         bar.update(1)
         rows["lockstep_no_image"] = lockstep(steps, reps)
@@ -150,6 +211,13 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["render_rgb400"] = render_time(200 if quick else 1000)
         bar.update(1)
+        rows["agent_env"] = agent_env(max(100, steps // 5), reps)
+        bar.update(1)
+        rows["highway_env_peer"] = highway_peer(max(50, steps // 20), reps)
+        bar.update(1)
+    if "error" not in rows["highway_env_peer"]:
+        peer = rows["highway_env_peer"]["steps_per_s"]["median"]
+        rows["agent_env"]["x_highway_env"] = rows["agent_env"]["steps_per_s"]["median"] / peer
     echo = rows["udp_echo"]["steps_per_s"]["median"]
     rows["lockstep_no_image"]["pct_of_echo"] = 100.0 * rows["lockstep_no_image"]["steps_per_s"]["median"] / echo
     return {
@@ -184,6 +252,15 @@ def format_table(result: dict[str, Any]) -> str:
     rate("lockstep_no_image", "lockstep, no image", f">= 5000/s ({f['lockstep_no_image']['pct_of_echo']:.0f}% of echo)")
     rate("lockstep_rgb400", "lockstep, 400x400 RGB (480 KB)", "")
     rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
+    r = f["agent_env"]["steps_per_s"]
+    ratio = f["agent_env"].get("x_highway_env")
+    lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))
+    peer = f["highway_env_peer"]
+    if "error" in peer:
+        lines.append(f"{'highway-env highway-v0 (peer)':34} {peer['error']}")
+    else:
+        r = peer["steps_per_s"]
+        lines.append(f"{'highway-env highway-v0 (peer)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  8x150x105 gray, 50 Hz")
     r = f["render_rgb400"]["ms"]
     lines.append(f"{'render 400x400 RGB':34} {r['median']:>9.3f} ms {'p99 ' + format(r['p99'], '.3f'):>22}  <= 0.5 ms (max 1 ms)")
     return "\n".join(lines)

@@ -65,7 +65,11 @@ def test_killed_server_makes_client_exit_nonzero_naming_address(tmp_path):
             [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--server", address, "--give-up", "2", "--log", str(tmp_path / "k.csv")],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        time.sleep(2.0)  # realtime: the run is under way, far from its 240 s end
+        log = tmp_path / "k.csv"
+        deadline = time.monotonic() + 60
+        # Realtime: wait until the run is under way, far from its 240 s end.
+        while time.monotonic() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 10):
+            time.sleep(0.1)
         assert client.poll() is None
         proc.kill()
         killed = time.monotonic()

@@ -1,0 +1,39 @@
+"""`vacc bench --quick --json` reports every figure. Timings are never asserted."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+
+def _positive_numbers(node, path=""):
+    if isinstance(node, dict):
+        for key, value in node.items():
+            yield from _positive_numbers(value, f"{path}/{key}")
+    elif isinstance(node, (int, float)) and not isinstance(node, bool):
+        yield path, node
+
+
+def test_quick_bench_reports_every_figure(tmp_path):
+    out = tmp_path / "bench.json"
+    result = subprocess.run(
+        [sys.executable, "-m", "vacc", "bench", "--quick", "--json", str(out)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    data = json.loads(out.read_text())
+    assert {"date", "cpu", "cores", "versions"} <= set(data["header"])
+    figures = data["figures"]
+    for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "render_rgb400", "agent_env"):
+        assert key in figures, key
+    assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
+    assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
+    # The peer is optional (the bench extra); when absent it says how to install it.
+    peer = figures["highway_env_peer"]
+    assert "steps_per_s" in peer or "vacc[bench]" in peer["error"]
+    values = dict(_positive_numbers(figures))
+    assert len(values) > 20
+    for path, value in values.items():
+        assert value > 0 or path == "/lockstep_no_image/image_bytes", path
+    assert "lockstep, no image" in result.stdout
