@@ -38,6 +38,7 @@ from protocol.faults import FaultConfig
 CONTROLLERS = ("acc", "hdm", "ddqn", "human-file", "keyboard")
 TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4", "random")
 LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
+DDQN_IMAGE = (200, 200)  # [px] gray camera size the ddqn controller asks for (the paper's x0.5)
 
 
 def parse_hostport(value: str) -> tuple[str, int]:
@@ -147,6 +148,15 @@ def drive(
             raise click.ClickException(str(exc)) from None
         if server is not None:
             click.echo("note: --server given: start it with 'vacc serve --realtime' to drive at wall-clock speed", err=True)
+    elif controller == "ddqn":
+        if checkpoint is None:
+            raise click.UsageError("--controller ddqn needs --checkpoint PATH")
+        from agent_client.ddqn import DDQNController  # torch is imported only for ddqn
+
+        try:
+            policy = DDQNController.from_checkpoint(checkpoint)
+        except ClientError as exc:
+            raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
     else:
         raise click.UsageError(f"--controller {controller} is not available yet in this version")
     live = controller == "keyboard"
@@ -159,10 +169,13 @@ def drive(
             raise click.BadParameter(str(exc), param_hint="--trajectory") from None
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
     image_format = "rgb" if live else "none"
+    image_size = LIVE_IMAGE
+    if controller == "ddqn":  # gray at the paper's x0.5: all the network's input needs
+        image_format, image_size = "gray", DDQN_IMAGE
     try:
         with (
             server_address(server, *server_args) as addr,
-            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=LIVE_IMAGE) as session,
+            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=image_size) as session,
             contextlib.ExitStack() as stack,
         ):
             period = float(session.welcome["control_period"]) if session.welcome else 0.1

@@ -6,7 +6,6 @@ Registered as ``vacc/VisionACC-v0``.
 from __future__ import annotations
 
 import contextlib
-from collections import deque
 from typing import Any
 
 import gymnasium as gym
@@ -17,12 +16,12 @@ from agent_client import preprocess as pre
 from agent_client.launcher import local_server
 from agent_client.rewards import REWARDS
 from agent_client.session import GIVE_UP, Session
+from agent_client.stacker import MAX_SPEED, FrameStacker
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
 
 N_ACTIONS = 21
 FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of each action: -1.0, -0.9, ..., 1.0
-MAX_SPEED = 60.0  # [m/s] upper bound of the speed observation
 AGENT_IMAGE = (200, 200)  # [px] asked of the server: the paper's x0.5 of 400x400, rendered natively
 
 
@@ -101,20 +100,13 @@ class VisionACCEnv(gym.Env):
         self.session = self._stack.enter_context(
             Session(addr, image_format="gray", image_size=AGENT_IMAGE, give_up=give_up, client_name="vacc-env")
         )
-        self._history: deque[tuple[np.ndarray, float]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
+        self._stacker = FrameStacker(frame_stack, stack_stride)
         self._last_image: np.ndarray | None = None
 
     def _observe(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
         image = Session.image(obs)
         self._last_image = image
-        self._history.append((pre.preprocess(image), obs["v_host"]))
-        picks = list(self._history)[::-1][:: self.stack_stride][::-1]
-        while len(picks) < self.frame_stack:  # episode start: repeat the first frame
-            picks.insert(0, picks[0])
-        return {
-            "frames": np.stack([f for f, _ in picks]),
-            "speeds": np.array([min(v, MAX_SPEED) for _, v in picks], dtype=np.float32),
-        }
+        return self._stacker.push(pre.preprocess(image), obs["v_host"])
 
     @staticmethod
     def _info(obs: dict[str, Any]) -> dict[str, Any]:
@@ -131,7 +123,7 @@ class VisionACCEnv(gym.Env):
             trajectory=options.get("trajectory", self.trajectory),
             duration=self.episode_seconds,
         )
-        self._history.clear()
+        self._stacker.reset()
         info = self._info(obs)
         info["seed"] = episode_seed
         return self._observe(obs), info

@@ -1,0 +1,54 @@
+"""The frame/speed stack of the DDQN input, shared by the env and the ddqn controller.
+
+Both must build exactly the same stacks from the same frames, or a policy trained
+in the env would see other inputs when it drives; so there is one implementation.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+__all__ = ["FrameStacker", "MAX_SPEED"]
+
+MAX_SPEED = 60.0  # [m/s] upper bound of the speed observation
+
+
+class FrameStacker:
+    """The last ``frame_stack`` frames, ``stack_stride`` control steps apart.
+
+    At an episode start, where fewer frames exist, the oldest available pick is
+    repeated in front (so the first observation is ``frame_stack`` copies of the
+    first frame).
+
+    Args:
+        frame_stack: frames per observation.
+        stack_stride: control steps between stacked frames.
+    """
+
+    def __init__(self, frame_stack: int = 8, stack_stride: int = 1):
+        if frame_stack < 1 or stack_stride < 1:
+            raise ValueError("frame_stack and stack_stride must be >= 1")
+        self.frame_stack, self.stack_stride = frame_stack, stack_stride
+        self._history: deque[tuple[np.ndarray, float]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
+
+    def reset(self) -> None:
+        """Forget the previous episode."""
+        self._history.clear()
+
+    def push(self, frame: np.ndarray, v_host: float) -> dict[str, np.ndarray]:
+        """Add one preprocessed frame and its host speed [m/s]; return the observation.
+
+        Returns:
+            ``{"frames": uint8 (frame_stack, H, W), "speeds": float32 (frame_stack,)}``,
+            oldest first; speeds clipped to :data:`MAX_SPEED`.
+        """
+        self._history.append((frame, v_host))
+        picks = list(self._history)[::-1][:: self.stack_stride][::-1]
+        while len(picks) < self.frame_stack:  # episode start: repeat the oldest pick
+            picks.insert(0, picks[0])
+        return {
+            "frames": np.stack([f for f, _ in picks]),
+            "speeds": np.array([min(v, MAX_SPEED) for _, v in picks], dtype=np.float32),
+        }

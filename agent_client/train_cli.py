@@ -1,0 +1,107 @@
+"""`vacc train`: fill in :class:`agent_client.ddqn.Config` from flags and train."""
+
+from __future__ import annotations
+
+import json
+import signal
+from pathlib import Path
+
+import click
+
+from agent_client.ddqn import Config
+from agent_client.ddqn import train as run_training
+from agent_client.errors import ClientError
+
+_D = Config()  # defaults shown in --help
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    return None if value is None or value <= 0 else value
+
+
+@click.command("train")
+@click.option("--reward", required=True, type=click.Choice(["gap", "force"]), help="Table 1 reward: gap term, or gap + force terms.")
+@click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
+@click.option("--steps", required=True, type=click.IntRange(min=1), help="Environment steps (0.1 s each) to train for, in total.")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and replay.npz.")
+@click.option("--seed", default=_D.seed, show_default=True, type=int)
+@click.option("--eval-every", default=_D.eval_every, show_default=True, type=click.IntRange(min=0), help="Steps between evaluations on test-1..4 (0: only at the end).")
+@click.option("--eval-seconds", default=None, type=float, callback=_seconds, help="Evaluation episode length [s] (default: whole trajectories).")
+@click.option("--eval-trajectories", default=",".join(_D.eval_trajectories), show_default=True, help="Comma-separated test trajectories.")
+@click.option("--episode-seconds", default=_D.episode_seconds, show_default=True, type=float, callback=_seconds, help="Training episode length [s] (0: the whole 240 s trajectory).")
+@click.option("--buffer-size", default=_D.buffer_size, show_default=True, type=click.IntRange(min=100))
+@click.option("--learning-starts", default=_D.learning_starts, show_default=True, type=click.IntRange(min=0))
+@click.option("--exploration-steps", default=_D.exploration_steps, show_default=True, type=click.IntRange(min=1))
+@click.option("--end-e", default=_D.end_e, show_default=True, type=click.FloatRange(0.0, 1.0))
+@click.option("--learning-rate", default=_D.learning_rate, show_default=True, type=click.FloatRange(min=0.0, min_open=True))
+@click.option("--batch-size", default=_D.batch_size, show_default=True, type=click.IntRange(min=1))
+@click.option("--train-every", default=_D.train_every, show_default=True, type=click.IntRange(min=1), help="Environment steps per gradient step.")
+@click.option("--target-sync-every", default=_D.target_sync_every, show_default=True, type=click.IntRange(min=1))
+@click.option("--gamma", default=_D.gamma, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True))
+@click.option("--stack-stride", default=_D.stack_stride, show_default=True, type=click.IntRange(min=1), help="Control steps between stacked frames.")
+@click.option("--checkpoint-every", default=_D.checkpoint_every, show_default=True, type=click.IntRange(min=1))
+@click.option("--log-every", default=_D.log_every, show_default=True, type=click.IntRange(min=1), help="Steps between loss/Q-value scalars.")
+@click.option("--threads", default=_D.torch_threads, show_default=True, type=click.IntRange(min=1), help="torch CPU threads.")
+@click.option("--no-cuda", is_flag=True, help="Stay on the CPU even if CUDA is available.")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+def train(
+    reward: str,
+    scenario: str,
+    steps: int,
+    out: str,
+    resume: bool,
+    seed: int,
+    eval_every: int,
+    eval_seconds: float | None,
+    eval_trajectories: str,
+    episode_seconds: float | None,
+    buffer_size: int,
+    learning_starts: int,
+    exploration_steps: int,
+    end_e: float,
+    learning_rate: float,
+    batch_size: int,
+    train_every: int,
+    target_sync_every: int,
+    gamma: float,
+    stack_stride: int,
+    checkpoint_every: int,
+    log_every: int,
+    threads: int,
+    no_cuda: bool,
+    quiet: bool,
+) -> None:
+    """Train a Double-DQN policy from camera frames against spawned simulator servers.
+
+    Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay.npz) and
+    OUT/best.pt (the policy with the best test evaluation; drive it with
+    `vacc drive --controller ddqn --checkpoint OUT/best.pt`).
+    """
+    trajectories = tuple(t.strip() for t in eval_trajectories.split(",") if t.strip())
+    if not trajectories:
+        raise click.BadParameter("give at least one trajectory", param_hint="--eval-trajectories")
+    cfg = Config(
+        reward=reward, scenario=scenario, total_steps=steps, seed=seed, eval_every=eval_every,
+        eval_seconds=eval_seconds, eval_trajectories=trajectories, episode_seconds=episode_seconds,
+        buffer_size=buffer_size, learning_starts=learning_starts, exploration_steps=exploration_steps,
+        end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
+        target_sync_every=target_sync_every, gamma=gamma, stack_stride=stack_stride,
+        checkpoint_every=checkpoint_every, log_every=log_every, torch_threads=threads, cuda=not no_cuda,
+    )  # fmt: skip
+    if resume and not (Path(out) / "latest.pt").exists():
+        raise click.UsageError(f"--resume: {Path(out) / 'latest.pt'} does not exist")
+    # A plain `kill` should still reap the spawned servers (the finally blocks run).
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        summary = run_training(cfg, out, resume=resume, progress=not quiet)
+    except ClientError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
+    for r in summary["last_eval"]:
+        click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
+    (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")

@@ -1,0 +1,297 @@
+"""The DDQN learner: replay memory, target, checkpoints, privileged-state guard."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+import torch
+
+from agent_client.ddqn import (
+    CHECKPOINT_FORMAT,
+    CHECKPOINT_VERSION,
+    FORCES,
+    Config,
+    DDQNController,
+    QNetwork,
+    ReplayMemory,
+    double_dqn_target,
+    linear_schedule,
+    load_policy,
+    save_policy,
+)
+from agent_client.errors import InputFileError
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.stacker import FrameStacker
+
+FRAME_BYTES = FRAME_H * FRAME_W  # one preprocessed frame, uint8
+
+
+def _fill(memory: ReplayMemory, rng: np.random.Generator, lengths: list[int], ends: list[str]):
+    """Play synthetic episodes into ``memory``; return each slot's expected stack."""
+    stacker = FrameStacker(memory.frame_stack, memory.stack_stride)
+    expected: dict[int, dict[str, np.ndarray]] = {}
+    flags: dict[int, tuple[bool, bool]] = {}
+    for n, end in zip(lengths, ends, strict=True):
+        stacker.reset()
+        frame = rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
+        obs = stacker.push(frame, float(rng.uniform(0, 40)))
+        memory.start(obs)
+        expected[memory.total - 1] = obs
+        for k in range(n):
+            frame = rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
+            next_obs = stacker.push(frame, float(rng.uniform(0, 40)))
+            last = k == n - 1
+            terminated, truncated = last and end == "terminated", last and end == "truncated"
+            flags[memory.total - 1] = (terminated, truncated)
+            memory.add(int(rng.integers(21)), float(rng.uniform(-1, 1)), terminated, truncated, next_obs)
+            expected[memory.total - 1] = next_obs
+    return expected, flags
+
+
+@pytest.mark.parametrize("stride", [1, 3])
+def test_replay_rebuilds_the_env_stacks_across_episode_boundaries(stride):
+    rng = np.random.default_rng(0)
+    memory = ReplayMemory(60, 8, stride)
+    expected, _ = _fill(memory, rng, [5, 1, 30, 12, 40], ["terminated", "truncated", "truncated", "terminated", "cut"])
+    checked = 0
+    for i, obs in expected.items():
+        pos = memory.pos[i % memory.capacity]
+        if i - stride * min(7, pos // stride) < memory.total - memory.capacity:
+            continue  # some of its frames were overwritten
+        frames, speeds = memory.stack(np.array([i]))
+        np.testing.assert_array_equal(frames[0], obs["frames"])
+        np.testing.assert_array_equal(speeds[0], obs["speeds"])
+        checked += 1
+    assert checked > 40
+
+
+def test_replay_samples_whole_valid_transitions_only():
+    rng = np.random.default_rng(1)
+    memory = ReplayMemory(50, 8, 2)
+    expected, flags = _fill(memory, rng, [10, 25, 3, 20], ["terminated", "terminated", "truncated", "cut"])
+    batch = memory.sample(256, rng)
+    for b, i in enumerate(batch["indices"]):
+        assert i in flags, "sampled an episode's last observation as a start"
+        np.testing.assert_array_equal(batch["frames"][b], expected[i]["frames"])
+        np.testing.assert_array_equal(batch["next_frames"][b], expected[i + 1]["frames"])
+        np.testing.assert_array_equal(batch["next_speeds"][b], expected[i + 1]["speeds"])
+        assert (bool(batch["terminated"][b]), bool(batch["truncated"][b])) == flags[i]
+    assert batch["truncated"].any() and batch["terminated"].any()
+    assert not (batch["truncated"] & batch["terminated"]).any()
+
+
+def test_replay_bytes_per_transition_within_1_1_frames():
+    memory = ReplayMemory(10_000, 8, 1)
+    scalars = 4 + 1 + 4 + 1 + 1  # speed f32, action u8, reward f32, terminated, truncated
+    per_transition = memory.nbytes / memory.capacity
+    assert per_transition <= 1.1 * (FRAME_BYTES + scalars)
+    assert per_transition >= FRAME_BYTES
+
+
+def test_replay_save_load_round_trip(tmp_path):
+    rng = np.random.default_rng(2)
+    memory = ReplayMemory(40, 8, 1)
+    _fill(memory, rng, [30, 20], ["truncated", "cut"])
+    memory.save(tmp_path / "replay.npz", step=50)
+    again = ReplayMemory(40, 8, 1)
+    assert again.load(tmp_path / "replay.npz") == 50
+    assert again.total == memory.total and again.transitions == memory.transitions
+    for name, a in memory._arrays().items():
+        np.testing.assert_array_equal(getattr(again, name), a)
+    with pytest.raises(InputFileError, match="capacity"):
+        ReplayMemory(41, 8, 1).load(tmp_path / "replay.npz")
+    (tmp_path / "bad.npz").write_bytes((tmp_path / "replay.npz").read_bytes()[:1000])
+    with pytest.raises(InputFileError, match="bad.npz"):
+        ReplayMemory(40, 8, 1).load(tmp_path / "bad.npz")
+
+
+def test_double_dqn_target_by_hand():
+    rewards = torch.tensor([1.0, 2.0, 3.0, -1.0])
+    terminated = torch.tensor([False, True, False, True])
+    next_q_online = torch.tensor([[1.0, 5.0], [3.0, 2.0], [0.0, 1.0], [9.0, 0.0]])  # [B, A]
+    next_q_target = torch.tensor([[10.0, 20.0], [30.0, 40.0], [50.0, 60.0], [70.0, 80.0]])  # [B, A]
+    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma=0.9, absorbing_terminal=False)
+    # online argmax: 1, -, 1, -; target scores them: 20, 60; terminations do not bootstrap
+    np.testing.assert_allclose(y.numpy(), [1 + 0.9 * 20, 2.0, 3 + 0.9 * 60, -1.0])
+    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma=0.9, absorbing_terminal=True)
+    np.testing.assert_allclose(y.numpy(), [19.0, 2.0 / 0.1, 57.0, -1.0 / 0.1], rtol=1e-6)
+    # the target net picks nothing: a plain DQN max would give 20 (row 0) and 60 (row 2) too,
+    # but row 1 would be 40 where the online net picks action 0 (30)
+    y = double_dqn_target(rewards, torch.zeros(4, dtype=torch.bool), next_q_online, next_q_target, 0.9, False)
+    np.testing.assert_allclose(y.numpy(), [19.0, 2 + 0.9 * 30, 57.0, -1 + 0.9 * 70], rtol=1e-6)
+
+
+def test_truncation_bootstraps_termination_does_not():
+    ones = torch.ones(2, 21)
+    y_trunc = double_dqn_target(torch.zeros(2), torch.tensor([False, False]), ones, 10 * ones, 0.99, False)
+    y_term = double_dqn_target(torch.zeros(2), torch.tensor([True, True]), ones, 10 * ones, 0.99, False)
+    np.testing.assert_allclose(y_trunc.numpy(), [9.9, 9.9], rtol=1e-6)
+    np.testing.assert_allclose(y_term.numpy(), [0.0, 0.0])
+
+
+def test_epsilon_schedule():
+    assert linear_schedule(1.0, 0.05, 100, 0) == 1.0
+    assert linear_schedule(1.0, 0.05, 100, 50) == pytest.approx(0.525)
+    assert linear_schedule(1.0, 0.05, 100, 10_000) == 0.05
+
+
+def test_network_shapes_and_size():
+    q = QNetwork()
+    out = q(torch.zeros(3, 8, FRAME_H, FRAME_W, dtype=torch.uint8), torch.full((3, 8), 30.0))
+    assert out.shape == (3, 21)
+    n_params = sum(p.numel() for p in q.parameters())
+    assert n_params * 4 < 5e6  # float32 weights under 5 MB
+    assert len(FORCES) == 21 and FORCES[0] == -1.0 and FORCES[-1] == 1.0
+
+
+# -- the network never sees privileged state ----------------------------------------
+
+
+def test_forward_takes_frames_and_speeds_only():
+    params = list(inspect.signature(QNetwork.forward).parameters)
+    assert params == ["self", "frames", "speeds"], "the Q-network's input must be frames and host speeds only"
+
+
+class _Recording(dict):
+    """A dict that remembers which keys were read."""
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        self.read: set[str] = set()
+
+    def __getitem__(self, key):
+        self.read.add(key)
+        return super().__getitem__(key)
+
+    def get(self, key, default=None):
+        self.read.add(key)
+        return super().get(key, default)
+
+
+def _raw_obs(rng: np.random.Generator, gap: float) -> _Recording:
+    image = rng.integers(0, 256, (200, 200), dtype=np.uint8)
+    return _Recording(
+        image=image.tobytes(), image_shape=[200, 200, 1], v_host=29.0, gap=gap, v_lead=31.0,
+        a_lead=0.5, accel=0.1, force=0.0, collision=False, t=0.0, frame=0, terminated=False, truncated=False, reason="",
+    )  # fmt: skip
+
+
+def test_controller_reads_only_image_and_host_speed():
+    ctl = DDQNController(QNetwork(), Config())
+    obs = _raw_obs(np.random.default_rng(0), gap=40.0)
+    ctl(obs)
+    assert obs.read <= {"image", "image_shape", "v_host"}, f"the ddqn controller read {sorted(obs.read)}"
+
+
+def test_changing_the_gap_cannot_change_the_action():
+    torch.manual_seed(0)
+    q = QNetwork()
+    for layer in q.fc:  # make the output sensitive to its inputs
+        if isinstance(layer, torch.nn.Linear):
+            torch.nn.init.normal_(layer.weight, std=0.5)
+    forces = set()
+    for gap in (0.5, 20.0, 55.0, 150.0, 299.0):
+        ctl = DDQNController(q, Config())
+        rng = np.random.default_rng(3)  # same frames every time
+        forces.add(tuple(ctl(_raw_obs(rng, gap)) for _ in range(10)))
+    assert len(forces) == 1
+
+
+def test_env_observations_carry_no_gap():
+    from agent_client.env import VisionACCEnv
+    from agent_client.launcher import local_server
+
+    with local_server() as addr:
+        env = VisionACCEnv(addr, episode_seconds=1.0)
+        try:
+            obs, info = env.reset(seed=0)
+            assert set(obs) == {"frames", "speeds"}
+            assert set(env.observation_space.spaces) == {"frames", "speeds"}
+            assert "gap" in info
+            ctl = DDQNController(QNetwork(), Config(stack_stride=env.stack_stride))
+            a = ctl.act(obs)
+            info["gap"] = 1.0  # privileged state changes; frames and speeds do not
+            assert ctl.act(obs) == a
+        finally:
+            env.close()
+
+
+# -- checkpoints ---------------------------------------------------------------------
+
+
+def test_policy_checkpoint_round_trip(tmp_path):
+    q = QNetwork()
+    cfg = Config(reward="force", stack_stride=3)
+    save_policy(q, cfg, tmp_path / "p.pt", {"step": 7})
+    q2, cfg2 = load_policy(tmp_path / "p.pt")
+    assert cfg2 == cfg
+    x = torch.randint(0, 256, (2, 8, FRAME_H, FRAME_W), dtype=torch.uint8)
+    v = torch.rand(2, 8) * 30
+    torch.testing.assert_close(q.eval()(x, v), q2(x, v))
+    assert (tmp_path / "p.pt").stat().st_size < 5e6
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+@pytest.fixture
+def good_checkpoint(tmp_path):
+    path = tmp_path / "good.pt"
+    save_policy(QNetwork(), Config(), path)
+    return path
+
+
+def test_missing_checkpoint(tmp_path):
+    with pytest.raises(InputFileError, match="nope.pt.*not found"):
+        load_policy(tmp_path / "nope.pt")
+
+
+def test_truncated_checkpoint(tmp_path, good_checkpoint):
+    bad = tmp_path / "cut.pt"
+    bad.write_bytes(good_checkpoint.read_bytes()[: good_checkpoint.stat().st_size // 2])
+    with pytest.raises(InputFileError, match="cut.pt.*truncated or corrupt"):
+        load_policy(bad)
+
+
+def test_garbage_checkpoint(tmp_path):
+    bad = tmp_path / "junk.pt"
+    bad.write_bytes(b"this is not a checkpoint\n" * 10)
+    with pytest.raises(InputFileError, match="junk.pt"):
+        load_policy(bad)
+
+
+def test_foreign_checkpoint(tmp_path):
+    bad = tmp_path / "foreign.pt"
+    torch.save({"state_dict": {}}, bad)
+    with pytest.raises(InputFileError, match="foreign.pt.*not a vacc DDQN checkpoint"):
+        load_policy(bad)
+
+
+def test_wrong_version_checkpoint(tmp_path, good_checkpoint):
+    ckpt = torch.load(good_checkpoint, weights_only=True)
+    ckpt["version"] = CHECKPOINT_VERSION + 1
+    bad = tmp_path / "future.pt"
+    torch.save(ckpt, bad)
+    with pytest.raises(InputFileError, match="future.pt.*version"):
+        load_policy(bad)
+
+
+def test_wrong_shape_checkpoint(tmp_path, good_checkpoint):
+    ckpt = torch.load(good_checkpoint, weights_only=True)
+    assert ckpt["format"] == CHECKPOINT_FORMAT
+    ckpt["model"]["fc.2.weight"] = torch.zeros(5, 256)  # 5 actions instead of 21
+    bad = tmp_path / "shape.pt"
+    torch.save(ckpt, bad)
+    with pytest.raises(InputFileError, match="shape.pt.*do not fit"):
+        load_policy(bad)
+    del ckpt["model"]["fc.2.weight"]
+    torch.save(ckpt, bad)
+    with pytest.raises(InputFileError, match="shape.pt"):
+        load_policy(bad)
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="reward"):
+        Config(reward="speed")
+    with pytest.raises(ValueError, match="scenario"):
+        Config(scenario="moon")

@@ -1,0 +1,114 @@
+"""Training end to end over real server processes: resume, `vacc train`, `vacc drive --controller ddqn`."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from agent_client.ddqn import Config, load_policy, train
+from vacc.cli import main
+
+TINY = Config(
+    total_steps=120, learning_starts=30, train_every=4, batch_size=8, buffer_size=400,
+    exploration_steps=100, target_sync_every=40, episode_seconds=3.0, checkpoint_every=30,
+    eval_every=0, eval_trajectories=(), log_every=20,
+)  # fmt: skip
+
+
+def _state(run_dir):
+    ckpt = torch.load(run_dir / "latest.pt", weights_only=True)
+    return ckpt
+
+
+def test_resume_continues_exactly_as_an_uninterrupted_run(tmp_path):
+    whole = train(TINY, tmp_path / "whole", progress=False)
+    first = train(TINY.__class__(**{**TINY.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
+    assert first["steps"] == 60
+    resumed = train(TINY, tmp_path / "split", resume=True, progress=False)
+    assert resumed["steps"] == whole["steps"] == 120
+    a, b = _state(tmp_path / "whole"), _state(tmp_path / "split")
+    assert a["state"]["global_step"] == b["state"]["global_step"] == 120
+    assert a["state"]["episodes"] == b["state"]["episodes"]
+    assert a["rng"]["numpy"] == b["rng"]["numpy"]
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    for key in a["target"]:
+        torch.testing.assert_close(a["target"][key], b["target"][key], rtol=0, atol=0)
+    assert a["optimizer"]["state"][0]["step"] == b["optimizer"]["state"][0]["step"]
+    # the scalars of the split run line up with the whole run's
+    names = lambda p: [(r["step"], r["name"]) for r in csv.DictReader(open(p / "scalars.csv")) if not r["name"].startswith("eval/")]  # noqa: E731
+    assert names(tmp_path / "whole") == names(tmp_path / "split")
+
+
+def test_resume_refuses_other_settings_and_missing_files(tmp_path):
+    from agent_client.errors import InputFileError
+
+    with pytest.raises(InputFileError, match="latest.pt.*not found"):
+        train(TINY, tmp_path / "none", resume=True, progress=False)
+    train(Config(**{**TINY.__dict__, "total_steps": 30}), tmp_path / "run", progress=False)
+    with pytest.raises(InputFileError, match="other settings.*gamma"):
+        train(Config(**{**TINY.__dict__, "gamma": 0.9}), tmp_path / "run", resume=True, progress=False)
+    (tmp_path / "run" / "replay.npz").unlink()
+    with pytest.raises(InputFileError, match="replay.npz"):
+        train(TINY, tmp_path / "run", resume=True, progress=False)
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train") / "run"
+    args = [
+        "train", "--reward", "force", "--scenario", "ice", "--steps", "200", "--out", str(out),
+        "--learning-starts", "50", "--episode-seconds", "5", "--buffer-size", "1000",
+        "--exploration-steps", "100", "--eval-every", "100", "--eval-seconds", "1",
+        "--eval-trajectories", "test-1", "--quiet", "--seed", "3", "--log-every", "20",
+    ]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    return out, result.output
+
+
+def test_train_cli_writes_the_run_folder(trained_run):
+    out, output = trained_run
+    assert "trained 200 steps" in output and "test-1: gap RMSE" in output
+    for name in ("config.json", "scalars.csv", "latest.pt", "replay.npz", "best.pt", "summary.json"):
+        assert (out / name).is_file(), name
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["reward"] == "force" and cfg["total_steps"] == 200 and cfg["seed"] == 3
+    names = {r["name"] for r in csv.DictReader(open(out / "scalars.csv"))}
+    for name in ("charts/episodic_return", "charts/SPS", "charts/epsilon", "losses/td_loss", "losses/q_values", "eval/gap_rmse_m", "eval/collisions"):
+        assert name in names, name
+    assert (out / "best.pt").stat().st_size < 5e6
+    q, loaded = load_policy(out / "best.pt")
+    assert loaded.reward == "force"
+    assert not list(out.glob("*.tmp"))
+
+
+def test_drive_ddqn_writes_a_valid_log(trained_run, tmp_path):
+    out, _ = trained_run
+    log = tmp_path / "ddqn.csv"
+    result = CliRunner().invoke(
+        main, ["drive", "--controller", "ddqn", "--checkpoint", str(out / "best.pt"), "--trajectory", "test-2", "--duration", "3", "--log", str(log)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "ddqn on ice/test-2" in result.output
+    rows = list(csv.DictReader(open(log)))
+    assert len(rows) == 31
+    for col in ("t", "frame", "v_host", "v_lead", "gap", "accel", "force", "collision"):
+        assert col in rows[0]
+    forces = {round(float(r["force"]), 1) for r in rows[1:]}
+    assert forces <= {round(-1 + 0.1 * a, 1) for a in range(21)}
+
+
+def test_drive_ddqn_bad_checkpoint_is_a_clear_error(tmp_path):
+    bad = tmp_path / "broken.pt"
+    bad.write_bytes(b"\x00" * 100)
+    runner = CliRunner()
+    result = runner.invoke(main, ["drive", "--controller", "ddqn", "--checkpoint", str(bad), "--log", str(tmp_path / "x.csv")])
+    assert result.exit_code == 2
+    assert "broken.pt" in result.output and "Traceback" not in result.output
+    result = runner.invoke(main, ["drive", "--controller", "ddqn", "--log", str(tmp_path / "x.csv")])
+    assert result.exit_code == 2 and "--checkpoint" in result.output
