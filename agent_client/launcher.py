@@ -23,10 +23,10 @@ READY_PREFIX = "vacc-server listening on "
 START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
 
 
-def _start(args: list[str], timeout: float) -> tuple[subprocess.Popen[str], tuple[str, int]]:
+def _start(args: list[str], timeout: float, stderr: int | None = None) -> tuple[subprocess.Popen[str], tuple[str, int]]:
     cmd = [sys.executable, "-m", "sim_server", "--port", "0", *args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True, env=env)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env)
     assert proc.stdout is not None
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -57,8 +57,13 @@ def _reap(proc: subprocess.Popen[str]) -> None:
 
 
 @contextlib.contextmanager
-def local_server(*args: str, retries: int = 2, timeout: float = START_TIMEOUT) -> Iterator[tuple[str, int]]:
+def local_server(
+    *args: str, retries: int = 2, timeout: float = START_TIMEOUT, stderr: int | None = None
+) -> Iterator[tuple[str, int]]:
     """Run ``python -m sim_server ARGS`` on 127.0.0.1 for the ``with`` block.
+
+    ``stderr`` is where the server's log goes (``subprocess.DEVNULL`` to hide its
+    counters); by default it shares ours.
 
     Yields:
         The server's (host, port).
@@ -69,7 +74,7 @@ def local_server(*args: str, retries: int = 2, timeout: float = START_TIMEOUT) -
     last: ServerLaunchError | None = None
     for _ in range(retries + 1):
         try:
-            proc, addr = _start(list(args), timeout)
+            proc, addr = _start(list(args), timeout, stderr)
             break
         except ServerLaunchError as exc:
             last = exc

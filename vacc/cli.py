@@ -19,6 +19,7 @@ COMMANDS = {
     "snapshot": "vacc.snapshot_cmd:snapshot",
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
+    "evaluate": "vacc.evaluate:evaluate",
 }
 
 

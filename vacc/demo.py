@@ -7,6 +7,7 @@ like the paper's Table 3.
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 
 import click
@@ -38,7 +39,7 @@ def demo(out: str, trajectory: str) -> None:
     """Drive the ACC on an ICE test trajectory over UDP and print a scored summary."""
     log = Path(out) / f"ice-{trajectory}-acc.csv"
     click.echo(f"Spawning a simulator server and driving the traditional ACC on ICE {trajectory} (240 s)...")
-    with local_server() as addr, Session(addr, client_name="vacc-demo") as session:
+    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, client_name="vacc-demo") as session:
         summary = drive_episode(session, AccController(), scenario="ice", seed=0, trajectory=trajectory, log=log)
     for line in summary.lines():
         click.echo("  " + line)

@@ -1,0 +1,320 @@
+"""`vacc evaluate`: every method on the same trajectories, scored as the paper's Tables 3 and 4.
+
+Each run is a real simulator process and a client over UDP. The lead vehicle is
+scored on its own trajectory (as in the paper); its logs carry the lead's speed as
+``v_host`` and a 55 m placeholder gap, so gap rows are blank for it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import subprocess
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from energy import evaluate_run
+
+TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4")
+METHODS = ("lead", "ddqn-gap", "ddqn-force", "acc", "human")
+LABELS = {
+    "lead": "Lead vehicle",
+    "ddqn-gap": "Gap-based DDQN",
+    "ddqn-force": "Force-based DDQN",
+    "acc": "Traditional ACC",
+}
+HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
+DEFAULT_VEHICLE = {"ice": "corolla", "ev": "leaf"}
+
+# (label, metric key, unit, decimals); None rows are blank for the lead.
+ICE_ROWS = [
+    ("Fuel", "fuel_g_per_mi", "g/mi", 1),
+    ("CO2", "co2_g_per_mi", "g/mi", 1),
+    ("CO", "co_g_per_mi", "g/mi", 3),
+    ("HC", "hc_g_per_mi", "g/mi", 4),
+    ("NOx", "nox_g_per_mi", "g/mi", 4),
+]
+EV_ROWS = [("Energy", "energy_kj_per_mi", "kJ/mi", 1)]
+DRIVING_ROWS = [
+    ("Gap RMSE to 55 m", "gap_rmse_55m_m", "m", 3),
+    ("Collisions", "collisions", "", 0),
+    ("Min time-to-collision", "ttc_min_s", "s", 2),
+    ("Jerk RMS", "jerk_rms_mps3", "m/s^3", 3),
+]
+GAP_KEYS = {"gap_rmse_55m_m", "collisions", "ttc_min_s"}
+
+# The paper's Tables 3 and 4 (Wei et al. 2019), for comparison.
+PAPER = {
+    "ice": {
+        "columns": ["Gap-based DDQN", "Force-based DDQN", "Traditional ACC", "Human"],
+        "rows": {
+            "Fuel (g/mi)": [169.3, 143.8, 143.8, 198.6],
+            "Gap RMSE to 55 m (m)": [3.423, 7.686, 6.667, 6.591],
+        },
+    },
+    "ev": {
+        "columns": ["Gap-based DDQN", "Force-based DDQN", "Traditional ACC", "Human"],
+        "rows": {
+            "Energy (kJ/mi)": [4.914e3, 2.056e3, 1.128e3, 1.500e3],
+            "Gap RMSE to 55 m (m)": [5.083, 10.98, 17.44, 5.439],
+        },
+    },
+}
+
+
+@dataclass(frozen=True)
+class Job:
+    """One method on one trajectory."""
+
+    method: str
+    trajectory: str
+    scenario: str
+    seed: int
+    log: str
+    duration: float | None
+    checkpoint: str | None = None
+    human_file: str | None = None
+
+
+def _controller(job: Job) -> Any:
+    if job.method == "acc":
+        from agent_client.controllers.acc import AccController
+
+        return AccController(), "none"
+    if job.method in ("human", "lead"):
+        if job.human_file:
+            from agent_client.controllers.human_file import HumanFileController, read_human_file
+
+            replay = read_human_file(job.human_file)
+            replay.check(scenario=job.scenario, trajectory=job.trajectory, seed=job.seed)
+            return HumanFileController(replay, "hold"), "none"
+        from agent_client.controllers.hdm import HumanDriverModel
+
+        return HumanDriverModel(seed=job.seed), "none"
+    from agent_client.ddqn import DDQNController
+
+    return DDQNController.from_checkpoint(job.checkpoint), "gray"
+
+
+def run_job(job: Job) -> Job:
+    """Drive one job through its own server process; returns it when its log is written."""
+    import torch
+
+    from agent_client.drive import drive_episode
+    from agent_client.launcher import local_server
+    from agent_client.session import Session
+
+    torch.set_num_threads(1)  # one run per core
+    controller, image = _controller(job)
+    log = Path(job.log)
+    if job.method == "lead":
+        log = log.with_name(log.name + ".tmp")
+    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=(200, 200), client_name=f"vacc-evaluate/{job.method}") as s:
+        drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log)
+    if job.method == "lead":
+        _lead_log(log, Path(job.log))
+        log.unlink()
+    return job
+
+
+def _lead_log(follower: Path, out: Path) -> None:
+    # The lead's own run: its speed and acceleration as the "host" of a log.
+    with follower.open() as f, out.open("w", newline="\n") as g:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames is not None
+        g.write(",".join(reader.fieldnames) + "\n")
+        for row in reader:
+            row.update(v_host=row["v_lead"], accel=row["a_lead"], gap="55.0", force="0.0", collision="0")
+            g.write(",".join(row[k] for k in reader.fieldnames) + "\n")
+
+
+def _fmt(value: Any, decimals: int) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "—"
+    return f"{value:.{decimals}f}"
+
+
+def build_tables(out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str) -> dict[str, Any]:
+    """Score every log, write table.md/table.csv; returns the averaged metrics."""
+    rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS
+    per: dict[str, dict[str, dict[str, Any]]] = {}
+    for method in methods:
+        per[method] = {}
+        for traj in TRAJECTORIES:
+            log = out / "logs" / f"{method}-{traj}.csv"
+            if log.exists():
+                per[method][traj] = evaluate_run(log, vehicle)
+    trajs = [t for t in TRAJECTORIES if all(t in per[m] for m in methods)]
+
+    def value(method: str, traj: str | None, key: str) -> Any:
+        if method == "lead" and key in GAP_KEYS:
+            return None
+        vals = [per[method][t][key] for t in ([traj] if traj else trajs)]
+        if any(v is None for v in vals):
+            vals = [v for v in vals if v is not None]
+            if not vals:
+                return None
+        if key == "collisions":
+            return int(sum(vals))
+        if key == "ttc_min_s":
+            return min(vals)
+        return float(np.mean(vals))
+
+    cols = [labels[m] for m in methods]
+    lines = [f"# {scenario.upper()} results ({'CMEM ' + vehicle if scenario == 'ice' else 'EV eq. 6 ' + vehicle}), average of {len(trajs)} trajectories", ""]
+
+    def table(traj: str | None) -> list[str]:
+        t = ["| Metric | " + " | ".join(cols) + " |", "| --- |" + " --- |" * len(cols)]
+        for label, key, unit, dec in rows:
+            name = f"{label} ({unit})" if unit else label
+            t.append(f"| {name} | " + " | ".join(_fmt(value(m, traj, key), dec) for m in methods) + " |")
+        return t
+
+    lines += table(None)
+    lines += ["", "Collisions are summed and the minimum time-to-collision is the minimum over the runs; the rest are means.", ""]
+    paper = PAPER[scenario]
+    lines += [f"## The paper's Table {'3' if scenario == 'ice' else '4'} (Wei et al. 2019)", ""]
+    lines += ["| Metric | " + " | ".join(paper["columns"]) + " |", "| --- |" + " --- |" * len(paper["columns"])]
+    for name, vals in paper["rows"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{v:g}" for v in vals) + " |")
+    lines += ["", "The paper's vehicle models and human drivers differ from ours; compare orders and ratios, not absolutes.", ""]
+    for traj in trajs:
+        lines += [f"## {traj}", ""] + table(traj) + [""]
+    (out / "table.md").write_text("\n".join(lines))
+    with (out / "table.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["trajectory", "metric", "unit", *cols])
+        for traj in [None, *trajs]:
+            for label, key, unit, dec in rows:
+                w.writerow([traj or "mean", label, unit, *[_fmt(value(m, traj, key), 6 if dec else 0) for m in methods]])
+    return {m: {key: value(m, None, key) for _, key, _, _ in rows} for m in methods}
+
+
+def plot_runs(out: Path, methods: list[str], labels: dict[str, str], traj: str = "test-1") -> None:
+    """fig_gap.png and fig_speed.png for one trajectory, like the paper's Fig. 5c/5d."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    logs = {m: np.genfromtxt(out / "logs" / f"{m}-{traj}.csv", delimiter=",", names=True) for m in methods}
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for m, d in logs.items():
+        if m != "lead":
+            ax.plot(d["t"], d["gap"], label=labels[m], lw=1)
+    ax.axhline(55.0, color="k", ls="--", lw=0.8, label="desired gap 55 m")
+    ax.set(xlabel="time [s]", ylabel="gap [m]", title=f"Gap, {traj}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "fig_gap.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(9, 4))
+    any_log = next(iter(logs.values()))
+    ax.plot(any_log["t"], any_log["v_lead"], color="k", lw=1.5, label="lead vehicle")
+    for m, d in logs.items():
+        if m != "lead":
+            ax.plot(d["t"], d["v_host"], label=labels[m], lw=1)
+    ax.set(xlabel="time [s]", ylabel="speed [m/s]", title=f"Speed, {traj}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "fig_speed.png", dpi=110)
+    plt.close(fig)
+
+
+def plot_training(out: Path, models: Path, scenario: str) -> None:
+    """fig_training.png from the shipped models' training curves (``<model>.curve.csv``: step,avg_reward)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    found = False
+    for reward in ("gap", "force"):
+        curve = models / f"{scenario}-{reward}.curve.csv"
+        if curve.exists():
+            d = np.genfromtxt(curve, delimiter=",", names=True)
+            ax.plot(d["step"], d["avg_reward"], label=f"{reward}-based DDQN")
+            found = True
+    if not found:
+        ax.text(0.5, 0.5, f"no training curves shipped in {models}", ha="center", va="center", transform=ax.transAxes)
+    ax.set(xlabel="training step", ylabel="average reward", title=f"Training, {scenario.upper()} (like Fig. 5a/5b)")
+    if found:
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "fig_training.png", dpi=110)
+    plt.close(fig)
+
+
+def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
+    files = {}
+    for item in values:
+        traj, sep, path = item.partition("=")
+        if not sep or traj not in TRAJECTORIES:
+            raise click.BadParameter(f"{item!r} is not TRAJ=PATH with TRAJ in test-1..test-4", param_hint="--human-file")
+        if not Path(path).is_file():
+            raise click.BadParameter(f"{path}: no such human-file", param_hint="--human-file")
+        files[traj] = path
+    return files
+
+
+@click.command("evaluate")
+@click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
+@click.option("--methods", default=",".join(METHODS), show_default=True, help="Comma-separated subset of: " + ", ".join(METHODS))
+@click.option("--models", default="models", show_default=True, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
+@click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")
+@click.option("--vehicle", default=None, type=click.Choice(["corolla", "average", "leaf"]), help="Energy model; default corolla (ICE) or leaf (EV).")
+@click.option("--duration", default=None, type=click.FloatRange(min=0.5), help="Drive only this many seconds of each trajectory.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Episode seed (initial conditions, traffic).")
+@click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
+def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int) -> None:
+    """Run every method on test-1..test-4 over UDP and write the paper's tables and figures."""
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = sorted(set(chosen) - set(METHODS))
+    if unknown:
+        raise click.BadParameter(f"unknown methods {unknown}; choose from {list(METHODS)}", param_hint="--methods")
+    files = _parse_human_files(human_files)
+    models_dir = Path(models)
+    checkpoints = {}
+    for m in chosen:
+        if m.startswith("ddqn-"):
+            path = models_dir / f"{scenario}-{m.removeprefix('ddqn-')}.pt"
+            if not path.is_file():
+                raise click.ClickException(
+                    f"model file {path} not found. Train it with: vacc train --reward {m.removeprefix('ddqn-')} "
+                    f"--scenario {scenario} --steps 200000 --out runs/{scenario}-{m.removeprefix('ddqn-')} "
+                    f"(then copy runs/.../best.pt to {path}), or leave {m} out of --methods"
+                )
+            checkpoints[m] = str(path)
+    labels = dict(LABELS)
+    labels["human"] = "Human (recorded)" if files else HDM_LABEL
+    out_dir = Path(out)
+    (out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    work = [
+        Job(m, t, scenario, seed, str(out_dir / "logs" / f"{m}-{t}.csv"), duration, checkpoints.get(m), files.get(t) if m == "human" else None)
+        for m in chosen
+        for t in TRAJECTORIES
+    ]
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label=f"evaluate {scenario}", file=None) as bar:
+        futures = [pool.submit(run_job, j) for j in work]
+        try:
+            for fut in as_completed(futures):
+                fut.result()
+                bar.update(1)
+        except Exception as exc:
+            for f in futures:
+                f.cancel()
+            raise click.ClickException(f"a run failed: {exc}") from None
+    veh = vehicle or DEFAULT_VEHICLE[scenario]
+    build_tables(out_dir, scenario, chosen, labels, veh)
+    plot_runs(out_dir, chosen, labels)
+    plot_training(out_dir, models_dir, scenario)
+    click.echo((out_dir / "table.md").read_text().split("\n## ")[0])
+    click.echo(f"Wrote {out_dir}/table.md, table.csv, fig_gap.png, fig_speed.png, fig_training.png and logs/")
