@@ -27,6 +27,7 @@ How a frame is made (painter's algorithm, far to near):
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -51,6 +52,7 @@ SCENERY_FAR = 220.0  # [m] trees and buildings are drawn up to here (cost grows 
 SHADOW_FAR = 150.0  # [m] scenery shadows beyond this are thin slivers at the horizon
 AA_INSET = 0.7  # [px] cv2's LINE_AA fill paints this far beyond each edge (measured)
 LOD_WIDTH = 12.0  # [px] traffic narrower than this is drawn without small parts
+TINY_WIDTH = 6.0  # [px] traffic narrower than this is drawn as three faces
 
 
 @dataclass(frozen=True)
@@ -187,18 +189,24 @@ class _CarTemplate:
     faces: tuple[tuple[str, tuple[str, float] | None], ...]
 
 
-def _make_template(kind: str, lod: bool = False) -> _CarTemplate:
+def _make_template(kind: str, lod: bool = False, tiny: bool = False) -> _CarTemplate:
     """Build a car model: ``rear``, ``brake`` (rear, braking), ``front`` or ``plain``.
 
     ``lod`` drops what is sub-pixel on a distant car: the underbody, the cabin's
     sides and top, the bumper and the plate.
+    ``tiny`` keeps only three near faces: the underbody, the body and the cabin drawn
+    as glass (a car a few pixels wide).
     """
     oncoming = kind == "front"
+    if tiny:
+        lod = False
     boxes = ("plain",) if kind == "plain" else (("body", "cabin") if lod else ("under", "body", "cabin"))
     decals = {"rear": _DECALS_REAR, "brake": _DECALS_BRAKE, "front": _DECALS_FRONT,
               "plain": {}}[kind]
     if lod:
         decals = {k: v for k, v in decals.items() if k not in ("bumper", "plate", "grille")}
+    if tiny:
+        decals = {}
     pts: list[tuple[float, float, float]] = []
     index: list[list[int]] = []
     faces: list[tuple[str, tuple[str, float] | None]] = []
@@ -208,9 +216,9 @@ def _make_template(kind: str, lod: bool = False) -> _CarTemplate:
             z0, z1 = _L - z1, _L - z0
         o = len(pts)
         pts += [(x, y, z) for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)]
-        if name == "under":
+        if name == "under" or tiny:
             index.append([o + c for c in _FACE_NEAR])
-            faces.append(("under", None))
+            faces.append(("under" if name == "under" else ("near" if name == "body" else "window"), None))
             continue
         sides: tuple[tuple[tuple[int, ...], str, tuple[str, float]], ...] = (
             (_FACE_LEFT, "left", ("left", x0)), (_FACE_RIGHT, "right", ("right", x1)),
@@ -230,6 +238,7 @@ def _make_template(kind: str, lod: bool = False) -> _CarTemplate:
 
 _TEMPLATES = {k: _make_template(k) for k in ("rear", "brake", "front", "plain")}
 _TEMPLATES.update({k + "_lod": _make_template(k, lod=True) for k in ("rear", "brake", "front")})
+_TEMPLATES.update({k + "_tiny": _make_template(k, tiny=True) for k in ("rear", "brake", "front")})
 # fixed colours (RGB) of the parts that are not body paint; lamps are emissive
 _FIXED = {
     "under": ((28, 28, 30), 0.0),
@@ -732,136 +741,183 @@ class Renderer:
         roi = img[y0:y1, x0:x1]
         cv2.multiply(roi, cv2.cvtColor(fac, cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
 
-    def _scenery_window(self, seed: int, s_cam: float, light: tuple, sh: tuple) -> tuple:
-        """The scenery near the road ahead, sorted far to near, with its light-dependent parts.
+    def _scenery_window(self, seed: int, s_cam: float, light: tuple, sh: tuple, pattern: tuple) -> tuple:
+        """The scenery of the road ahead as plain Python tuples, far to near.
 
-        Cached until the camera enters a new road tile or the light changes: tree
-        points ``(n, 12, 3)`` (trunk quad, crown centre, sunlit spot, shadow hexagon)
-        with ``Z`` holding the road position ``s``.
+        Cached until the camera enters a new road tile or the light changes. Per tree:
+        ``(s, x, yc, r, lit_dx, lit_dy, crown_rgb, lit_rgb, shadow_x, shadow_s, reach)``;
+        per building: ``(s, x_wall, x_far, length, height, floors, near_rgb, wall_rgb,
+        shadow_x, shadow_s, shadow_reach)``, colours lit but not yet hazed, shadows
+        as hexagons in road coordinates. A handful of objects is cheaper in
+        Python scalars than in a few dozen small numpy operations.
         """
         batch = self._scenery.window(seed, s_cam, s_cam + SCENERY_FAR)
-        key = (batch, light)  # holding the batch keeps its identity unique
         if self._win is not None and self._win_key is not None and self._win_key[0] is batch \
-                and self._win_key[1] == light:
+                and self._win_key[1] == light:  # holding the batch keeps its identity unique
             return self._win
         b = batch
-        o = np.argsort(-b.tree_s, kind="stable")
-        s, x, h, r, rgb = b.tree_s[o], b.tree_x[o], b.tree_h[o], b.tree_r[o], b.tree_rgb[o]
-        yc = h + 0.8 * r  # [m] crown centre height
-        n = len(s)
-        p = np.zeros((n, 12, 3))
-        p[:, 0:4, 0] = x[:, None] + np.array([-0.18, 0.18, 0.18, -0.18])
-        p[:, 2:4, 1] = yc[:, None]
-        p[:, 0:6, 2] = s[:, None]
-        p[:, 4, 0] = x
-        p[:, 4, 1] = yc
-        p[:, 5, 0] = x + 0.35 * r * float(np.clip(2 * light[0], -1, 1))  # sunlit side of the crown
-        p[:, 5, 1] = yc + 0.3 * r
-        p[:, 6:, 0] = (x + sh[0] * yc)[:, None] + r[:, None] * _HEX_COS
-        p[:, 6:, 2] = (s + sh[1] * yc)[:, None] + r[:, None] * _HEX_SIN
         k_crown = AMBIENT + DIFFUSE * 0.1
         k_lit = AMBIENT + DIFFUSE * (max(0.0, 0.35 - 0.65 * light[2]) + 0.3 * light[1] + 0.3)
-        crown = np.minimum(rgb * k_crown, 255)
-        lit = np.minimum(rgb * k_lit, 255)
-        trees = (s, -s, r, p, crown, lit, r - sh[1] * yc)
+        lit_dx = 0.35 * float(np.clip(2 * light[0], -1, 1))  # sunlit side of the crown
+        trees = []
+        for i in np.argsort(-b.tree_s, kind="stable").tolist():
+            s, x, r = float(b.tree_s[i]), float(b.tree_x[i]), float(b.tree_r[i])
+            yc = float(b.tree_h[i]) + 0.8 * r  # [m] crown centre height
+            rgb = b.tree_rgb[i].tolist()
+            trees.append((s, x, yc, r, lit_dx * r, 0.3 * r,
+                          tuple(min(c * k_crown, 255.0) for c in rgb), tuple(min(c * k_lit, 255.0) for c in rgb),
+                          tuple(x + sh[0] * yc + r * c for c in _HEX_COS.tolist()),
+                          tuple(s + sh[1] * yc + r * c for c in _HEX_SIN.tolist()), r - sh[1] * yc))
+        blds = []
         o = np.argsort(-b.bld_s, kind="stable")
-        blds = tuple(v[o] for v in (b.bld_s, b.bld_x, b.bld_len, b.bld_depth, b.bld_h, b.bld_rgb))
-        self._win = (trees, blds)
-        self._win_key = key
+        x_out = b.bld_x[o] + np.where(b.bld_x[o] > 0, b.bld_depth[o], -b.bld_depth[o])
+        hexes = _swept_many(np.minimum(b.bld_x[o], x_out), np.maximum(b.bld_x[o], x_out), b.bld_s[o],
+                            b.bld_s[o] + b.bld_len[o], sh[0] * b.bld_h[o], sh[1] * b.bld_h[o], pattern)
+        for j, i in enumerate(o.tolist()):
+            xb, hb = float(b.bld_x[i]), float(b.bld_h[i])
+            side = 1.0 if xb > 0 else -1.0
+            rgb = b.bld_rgb[i]
+            hx = hexes[j]
+            blds.append((float(b.bld_s[i]), xb, xb + side * float(b.bld_depth[i]), float(b.bld_len[i]), hb,
+                         min(int(hb // 3.5), _WINDOW_FLOORS), _shade(rgb, -light[2], 0.0),
+                         _shade(rgb, -side * light[0], 0.0), tuple(hx[:, 0].tolist()),
+                         tuple(hx[:, 2].tolist()), float(hx[:, 2].min() - b.bld_s[i])))
+        self._win = (trees, [-t[0] for t in trees], blds)
+        self._win_key = (batch, light)
         return self._win
 
     def _scenery_view(self, seed: int, s_cam: float, light: tuple, sh: tuple, pattern: tuple) -> tuple:
-        """Visible buildings and trees (far to near) and their shadow hexagons, fixed point."""
-        trees, blds = self._scenery_window(seed, s_cam, light, sh)
+        """Visible buildings and trees (far to near) and their shadow hexagons, fixed point.
+
+        Returns ``(buildings, trees, hexes, extra)``: draw lists, the shadow hexagons
+        ``(N, 6, 2)`` and near-clipped shadow polygons of other sizes.
+        """
+        trees, neg_s, blds = self._scenery_window(seed, s_cam, light, sh, pattern)
         zmin = self._z_ground_min
-        shadows = []
+        f, cx, cy, h = self._f, self._cx, self._cy, self._h
+        if self._level:
+            def proj(x: float, y: float, z: float) -> tuple[float, float]:
+                k = f / z
+                return cx + x * k, cy + (h - y) * k
+        else:
+            cp, sp = math.cos(self.config.pitch), math.sin(self.config.pitch)
+
+            def proj(x: float, y: float, z: float) -> tuple[float, float]:
+                dy = y - h
+                k = f / (z * cp - dy * sp)
+                return cx + x * k, cy - (dy * cp + z * sp) * k
+
+        def quad(pts: tuple) -> None:  # 4 points, shrunk by 0.5 px per axis for LINE_8
+            uv = [proj(*p) for p in pts]
+            mu = 0.25 * (uv[0][0] + uv[1][0] + uv[2][0] + uv[3][0])
+            mv = 0.25 * (uv[0][1] + uv[1][1] + uv[2][1] + uv[3][1])
+            for u, v in uv:
+                du, dv = u - mu, v - mv
+                du = (du - 0.5 if du > 0.5 else 0.0) if du >= 0 else (du + 0.5 if du < -0.5 else -0.0)
+                dv = (dv - 0.5 if dv > 0.5 else 0.0) if dv >= 0 else (dv + 0.5 if dv < -0.5 else -0.0)
+                quads.append(round((mu + du) * ONE))
+                quads.append(round((mv + dv) * ONE))
+
+        quads: list[int] = []
+        hexes: list[int] = []
         extra: list[np.ndarray] = []
-        # trees
-        s, neg_s, r, p, crown, lit, reach = trees
-        i0 = int(np.searchsorted(neg_s, -(s_cam + SCENERY_FAR), "right"))
-        i1 = int(np.searchsorted(neg_s, -(s_cam + 4.0), "left"))
-        tree_draw = None
-        if i1 > i0:
-            q = p[i0:i1].copy()
-            q[:, :, 2] -= s_cam
-            uv = self._proj(q)
-            z = s[i0:i1] - s_cam
-            keep = (z < SHADOW_FAR) & (z - reach[i0:i1] > zmin)  # shadow clear of the camera
-            uv[:, 0:4] = _shrink(uv[:, 0:4], 0.5)
-            fx = _fix(uv)
-            if keep.any():
-                shadows.append(fx[keep, 6:])
-            rad = ((np.maximum(self._f * r[i0:i1] / z - 0.5, 0.0)) * ONE).astype(np.int64)
-            fog = (1.0 - np.exp(-z / sc.FOG_DISTANCE))[:, None]
-            hz = sc.HAZE * fog
-            g = 1 - fog
-            tree_draw = (fx[:, 4:6].tolist(), rad.tolist(), fx[:, 0:4],
-                         (crown[i0:i1] * g + hz).tolist(), (lit[i0:i1] * g + hz).tolist(),
-                         (_TRUNK * g + hz).tolist())
+        hr, hg, hb_ = _HR, _HG, _HB
         # buildings
-        bs, bx, bl, bd, bh, brgb = blds
-        zb = bs - s_cam
-        vis = (zb + bl > 4.0) & (zb < SCENERY_FAR)
-        bld_draw = None
-        if vis.any():
-            zb, bx, bl, bd, bh, brgb = zb[vis], bx[vis], bl[vis], bd[vis], bh[vis], brgb[vis]
-            bld_draw = (zb, bx, bl, bd, bh, brgb)
-            near = zb <= SHADOW_FAR
-            if near.any():
-                zn, xn, dn = zb[near], bx[near], bd[near]
-                x_out = xn + np.where(xn > 0, dn, -dn)
-                hn = bh[near]
-                g6 = _swept_many(np.minimum(xn, x_out), np.maximum(xn, x_out), zn, zn + bl[near],
-                                 sh[0] * hn, sh[1] * hn, pattern)
-                ok = g6[:, :, 2].min(axis=1) >= zmin
-                shadows.append(_fix(self._proj(np.where(ok[:, None, None], g6, 1.0)))[ok])
-                for poly in g6[~ok]:  # reaches beside the camera: clip
-                    p3 = _clip_near(poly, zmin)
+        bld_draw = []
+        for s, xb, x1, ln, hgt, floors, c_near, c_wall, shx, shs, shz_min in blds:
+            zb = s - s_cam
+            if zb >= SCENERY_FAR:
+                continue
+            if zb + ln <= 4.0:
+                continue
+            z0 = zb if zb > zmin else zmin
+            z1 = zb + ln
+            fog = 1.0 - math.exp(-z0 / sc.FOG_DISTANCE)
+            g = 1.0 - fog
+            q0 = len(quads) >> 3
+            near = zb >= zmin
+            if near:
+                quad(((xb, 0.0, z0), (x1, 0.0, z0), (x1, hgt, z0), (xb, hgt, z0)))
+            quad(((xb, 0.0, z0), (xb, 0.0, z1), (xb, hgt, z1), (xb, hgt, z0)))
+            nwin = floors if z0 < 120.0 else 0  # window bands on the road-facing wall
+            for k in range(nwin):
+                ya, yb = 1.2 + 3.5 * k, 2.4 + 3.5 * k
+                quad(((xb, ya, z0 + 1.0), (xb, ya, z1 - 1.0), (xb, yb, z1 - 1.0), (xb, yb, z0 + 1.0)))
+            wall = (c_wall[0] * g + hr * fog, c_wall[1] * g + hg * fog, c_wall[2] * g + hb_ * fog)
+            bld_draw.append((q0, near, nwin, wall,
+                             (c_near[0] * g + hr * fog, c_near[1] * g + hg * fog, c_near[2] * g + hb_ * fog),
+                             (0.45 * wall[0], 0.45 * wall[1], 0.45 * wall[2])))
+            if zb <= SHADOW_FAR:
+                if zb + shz_min < zmin:  # reaches beside the camera: clip
+                    g6 = np.array([(gx, 0.0, gs - s_cam) for gx, gs in zip(shx, shs, strict=True)])
+                    p3 = _clip_near(g6, zmin)
                     if len(p3) >= 3:
                         extra.append(_fix(self._proj(p3)))
-        hexes = np.concatenate(shadows) if shadows else np.zeros((0, 6, 2), np.int32)
-        return bld_draw, tree_draw, hexes, extra
+                else:
+                    for gx, gs in zip(shx, shs, strict=True):
+                        u, v = proj(gx, 0.0, gs - s_cam)
+                        hexes.append(round(u * ONE))
+                        hexes.append(round(v * ONE))
+        # trees
+        i0 = bisect.bisect_right(neg_s, -(s_cam + SCENERY_FAR))
+        i1 = bisect.bisect_left(neg_s, -(s_cam + 4.0))
+        tree_draw = []
+        for s, x, yc, r, ldx, ldy, c_crown, c_lit, shx, shs, reach in trees[i0:i1]:
+            z = s - s_cam
+            fog = 1.0 - math.exp(-z / sc.FOG_DISTANCE)
+            g = 1.0 - fog
+            rad = int(max(f * r / z - 0.5, 0.0) * ONE)
+            u, v = proj(x, yc, z)
+            crown = ((round(u * ONE), round(v * ONE)), rad,
+                     (c_crown[0] * g + hr * fog, c_crown[1] * g + hg * fog, c_crown[2] * g + hb_ * fog))
+            trunk: tuple | None = None
+            lit: tuple | None = None
+            if rad > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
+                qi = len(quads) >> 3
+                quad(((x - 0.18, 0.0, z), (x + 0.18, 0.0, z), (x + 0.18, yc, z), (x - 0.18, yc, z)))
+                trunk = (qi, (_TRUNK_RGB[0] * g + hr * fog, _TRUNK_RGB[1] * g + hg * fog,
+                              _TRUNK_RGB[2] * g + hb_ * fog))
+            if rad > 5 * ONE:
+                u, v = proj(x + ldx, yc + ldy, z)
+                lit = ((round(u * ONE), round(v * ONE)), int(0.6 * rad),
+                       (c_lit[0] * g + hr * fog, c_lit[1] * g + hg * fog, c_lit[2] * g + hb_ * fog))
+            tree_draw.append((trunk, crown, lit))
+            if z < SHADOW_FAR and z - reach > zmin:  # shadow clear of the camera
+                for gx, gs in zip(shx, shs, strict=True):
+                    u, v = proj(gx, 0.0, gs - s_cam)
+                    hexes.append(round(u * ONE))
+                    hexes.append(round(v * ONE))
+        qa = np.array(quads, np.int32).reshape(-1, 4, 2)
+        hexa = np.array(hexes, np.int32).reshape(-1, 6, 2)
+        return (qa, bld_draw) if bld_draw else None, (qa, tree_draw) if tree_draw else None, hexa, extra
 
     # ------------------------------------------------------------------- objects
-    def _draw_buildings(self, img: np.ndarray, blds: tuple, light: tuple) -> None:
-        zb, xb, ln, dp, hb, rgb = blds
-        n = len(zb)
-        side = np.where(xb > 0, 1.0, -1.0)
-        z0 = np.maximum(zb, self._z_ground_min)
-        z1 = zb + ln
-        x1 = xb + side * dp
-        p = np.empty((n, 8 + 4 * _WINDOW_FLOORS, 3))
-        p[:, :, 0] = np.where(_BLD_X1, x1[:, None], xb[:, None])
-        p[:, :, 1] = _BLD_Y + _BLD_YH * hb[:, None]
-        p[:, :, 2] = np.where(_BLD_FAR, z1[:, None], z0[:, None]) + _BLD_DZ
-        fx = _fix(_shrink(self._proj(p).reshape(n, -1, 4, 2), 0.5))
-        fog = 1.0 - np.exp(-z0 / sc.FOG_DISTANCE)
-        floors = np.minimum(hb // 3.5, _WINDOW_FLOORS).astype(int).tolist()
-        zmin = self._z_ground_min
-        for i in range(n):
-            c_road = _shade(rgb[i], -side[i] * light[0], fog[i])
-            if zb[i] >= zmin:
-                cv2.fillConvexPoly(img, fx[i, 0], _shade(rgb[i], -light[2], fog[i]), L8, SHIFT)
-            cv2.fillConvexPoly(img, fx[i, 1], c_road, L8, SHIFT)
-            k = floors[i]
-            if z0[i] < 120.0 and k:  # window bands on the road-facing wall
-                win = (0.45 * c_road[0], 0.45 * c_road[1], 0.45 * c_road[2])
-                cv2.fillPoly(img, list(fx[i, 2:2 + k]), win, L8, SHIFT)
+    @staticmethod
+    def _draw_buildings(img: np.ndarray, geo: tuple, light: tuple) -> None:
+        """Buildings far to near: the face towards the camera, the road-facing wall, windows."""
+        qa, draw = geo
+        fill = cv2.fillConvexPoly
+        for q, near, nwin, wall, c_near, win in draw:
+            if near:
+                fill(img, qa[q], c_near, L8, SHIFT)
+                q += 1
+            fill(img, qa[q], wall, L8, SHIFT)
+            if nwin:
+                cv2.fillPoly(img, list(qa[q + 1:q + 1 + nwin]), win, L8, SHIFT)
 
     @staticmethod
     def _draw_trees(img: np.ndarray, geo: tuple) -> None:
         """Trees far to near: trunk (when it shows below the crown), crown, sunlit spot."""
-        centres, rad, trunks, crown, lit, trunk = geo
+        qa, draw = geo
         circle, fill = cv2.circle, cv2.fillConvexPoly
-        for i, ri in enumerate(rad):
-            if ri > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
-                fill(img, trunks[i], trunk[i], L8, SHIFT)
-            c = centres[i]
-            circle(img, c[0], ri, crown[i], -1, L8, SHIFT)
-            if ri > 5 * ONE:
-                circle(img, c[1], int(0.6 * ri), lit[i], -1, L8, SHIFT)
+        for trunk, crown, lit in draw:
+            if trunk is not None:
+                fill(img, qa[trunk[0]], trunk[1], L8, SHIFT)
+            circle(img, crown[0], crown[1], crown[2], -1, L8, SHIFT)
+            if lit is not None:
+                circle(img, lit[0], lit[1], lit[2], -1, L8, SHIFT)
 
-    def _car_faces(self, item: tuple, light: tuple, lod: bool) -> tuple[_CarTemplate, list]:
+    def _car_faces(self, item: tuple, light: tuple, lod: str) -> tuple[_CarTemplate, list]:
         """The template of a car and its visible faces as ``(face_row, colour)``.
 
         Cached per template, visibility case, body colour and light: the world sends
@@ -875,7 +931,7 @@ class Renderer:
         else:
             kind = "brake" if car.braking else "rear"
         if lod and kind != "plain":
-            kind += "_lod"
+            kind += lod
         tpl = _TEMPLATES[kind]
         sx, sy = car.width / CAR_WIDTH, car.height / CAR_HEIGHT
         side = 1 if x_c - 0.5 * car.width > 0 else (-1 if x_c + 0.5 * car.width < 0 else 0)
@@ -925,7 +981,10 @@ class Renderer:
         tpls, face_lists, scales, offs, counts = [], [], [], [], []
         for item in cars:
             z_near, x_c, _, car, is_lead = item
-            lod = not is_lead and self._f * car.width / z_near < LOD_WIDTH
+            lod = ""
+            if not is_lead:
+                w_px = self._f * car.width / z_near
+                lod = "_tiny" if w_px < TINY_WIDTH else ("_lod" if w_px < LOD_WIDTH else "")
             tpl, faces = self._car_faces(item, light, lod)
             tpls.append(tpl)
             face_lists.append(faces)
@@ -949,7 +1008,7 @@ class Renderer:
 
 _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
 _HEX_SIN = np.sin(np.linspace(0, 2 * np.pi, 7)[:-1])
-_TRUNK = np.array([95 * 0.62, 70 * 0.62, 45 * 0.62])
+_TRUNK_RGB = (95 * 0.62, 70 * 0.62, 45 * 0.62)
 _WINDOW_FLOORS = 3  # at most this many window bands per building
 # building points: near face (0-3), road-facing wall (4-7), window bands (4 per floor)
 _BLD_X1 = np.zeros(8 + 4 * _WINDOW_FLOORS, bool)  # at the far side (x1) rather than the wall
