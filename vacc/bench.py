@@ -155,26 +155,65 @@ def highway_peer(steps: int, reps: int) -> dict[str, Any]:
     return {"steps_per_s": _reps(rates)}
 
 
-def render_time(frames: int, size: tuple[int, int] = (400, 400)) -> dict[str, Any]:
-    """Median and p99 time to render one RGB frame in this process (one core)."""
-    from sim_server.render import CameraConfig, Renderer
+def _render_scenes(seed: int, n: int) -> list:
+    """``n`` consecutive camera states of a world run (ice scenario, 0.1 s apart)."""
     from sim_server.world import World
 
     world = World()
-    world.reset("ice", 0, "test-1")
-    renderer = Renderer(CameraConfig(width=size[0], height=size[1]))
+    world.reset("ice", seed, "test-1")
     scenes = []
-    for _ in range(64):
+    for _ in range(n):
         world.step(0.1)
         scenes.append(world.scene())
-    for scene in scenes:  # warm-up: fills the background caches
+    return scenes
+
+
+def render_time(frames: int, size: tuple[int, int] = (400, 400), gray: bool = False) -> dict[str, Any]:
+    """Median and p99 time to render one RGB frame in this process (one core).
+
+    ``gray`` adds the server's conversion to gray, as the agent asks for it.
+    """
+    import cv2
+
+    from sim_server.render import CameraConfig, Renderer
+
+    cv2.setNumThreads(1)
+    renderer = Renderer(CameraConfig(width=size[0], height=size[1]))
+    scenes = _render_scenes(0, 64)
+    for scene in scenes + scenes:  # warm-up: fills the background caches
         renderer.render(scene)
     times = []
     for i in range(frames):
         t = time.perf_counter()
-        renderer.render(scenes[i % len(scenes)])
+        img = renderer.render(scenes[i % len(scenes)])
+        if gray:
+            cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         times.append(time.perf_counter() - t)
     return {"ms": {k: v * 1e3 for k, v in _summary(times).items()}}
+
+
+def render_new_seed(seeds: int, size: tuple[int, int] = (400, 400), frames: int = 50) -> dict[str, Any]:
+    """Cost of a new scenery seed, as every training episode has: the first frame, and
+    the first ``frames`` frames together, on a renderer already warmed with another seed."""
+    import cv2
+
+    from sim_server.render import CameraConfig, Renderer
+
+    cv2.setNumThreads(1)
+    renderer = Renderer(CameraConfig(width=size[0], height=size[1]))
+    for scene in _render_scenes(0, 130):  # warm-up: one seed over all dash phases
+        renderer.render(scene)
+    first, total = [], []
+    for k in range(seeds):
+        scenes = _render_scenes(1000 + k, frames)
+        t0 = time.perf_counter()
+        renderer.render(scenes[0])
+        first.append(time.perf_counter() - t0)
+        for scene in scenes[1:]:
+            renderer.render(scene)
+        total.append(time.perf_counter() - t0)
+    return {"first_ms": {k: v * 1e3 for k, v in _summary(first).items()},
+            "frames": frames, "total_ms": {k: v * 1e3 for k, v in _summary(total).items()}}
 
 
 def _versions() -> dict[str, str]:
@@ -209,7 +248,9 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         bar.update(1)
-        rows["render_rgb400"] = render_time(200 if quick else 1000)
+        rows["render_rgb400"] = render_time(500 if quick else 2000)
+        rows["render_gray200"] = render_time(500 if quick else 2000, (200, 200), gray=True)
+        rows["render_new_seed"] = render_new_seed(5 if quick else 20)
         bar.update(1)
         rows["agent_env"] = agent_env(max(100, steps // 5), reps)
         bar.update(1)
@@ -263,6 +304,11 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"{'highway-env highway-v0 (peer)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  8x150x105 gray, 50 Hz")
     r = f["render_rgb400"]["ms"]
     lines.append(f"{'render 400x400 RGB':34} {r['median']:>9.3f} ms {'p99 ' + format(r['p99'], '.3f'):>22}  <= 0.5 ms (max 1 ms)")
+    r = f["render_gray200"]["ms"]
+    lines.append(f"{'render 200x200 gray (agent)':34} {r['median']:>9.3f} ms {'p99 ' + format(r['p99'], '.3f'):>22}")
+    r = f["render_new_seed"]
+    lines.append(f"{'render, new seed: first frame':34} {r['first_ms']['median']:>9.3f} ms {'max ' + format(r['first_ms']['max'], '.3f'):>22}  a few ms")
+    lines.append(f"{'  first ' + str(r['frames']) + ' frames together':34} {r['total_ms']['median']:>9.1f} ms {'max ' + format(r['total_ms']['max'], '.1f'):>22}")
     return "\n".join(lines)
 
 
