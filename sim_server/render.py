@@ -372,7 +372,7 @@ def _sweep_pattern(a: float, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def _swept_many(x0: np.ndarray, x1: np.ndarray, z0: np.ndarray, z1: np.ndarray, a: np.ndarray,
                 b: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """:func:`_swept_rect` for many boxes at once: ``(N, 6, 3)`` ground points (Y = 0)."""
-    ix, iz, mv = pattern
+    ix, iz, mv = pattern[:3]
     out = np.zeros((len(x0), 6, 3))
     out[:, :, 0] = np.where(ix, x1[:, None], x0[:, None]) + mv * a[:, None]
     out[:, :, 2] = np.where(iz, z1[:, None], z0[:, None]) + mv * b[:, None]
@@ -461,6 +461,18 @@ class Renderer:
         # first row that holds only ground (pure haze at the horizon): rows above it are
         # sky and hills (per seed), rows from it down come from the ground layers
         self._g0 = min(max(int(math.floor(self._horizon)), 0), cfg.height)
+        f, cx, cy, h = self._f, self._cx, self._cy, self._h
+        if self._level:  # the projection of one point in Python scalars, same order as _proj
+            def proj(x: float, y: float, z: float) -> tuple[float, float]:
+                return x / z * f + cx, (h - y) / z * f + cy
+        else:
+            cp, sp = math.cos(cfg.pitch), math.sin(cfg.pitch)
+
+            def proj(x: float, y: float, z: float) -> tuple[float, float]:
+                dy = y - h
+                zc = z * cp - dy * sp
+                return cx + f * x / zc, cy - f * (dy * cp + z * sp) / zc
+        self._proj_py = proj
 
     # ------------------------------------------------------------------ background
     def _sky_gradient(self, height: int | None = None) -> np.ndarray:
@@ -629,7 +641,9 @@ class Renderer:
         if pattern is None:
             if len(self._pattern) > 64:
                 self._pattern.clear()
-            pattern = self._pattern[sh] = _sweep_pattern(*sh)
+            ix, iz, mv = _sweep_pattern(*sh)
+            pattern = self._pattern[sh] = (ix, iz, mv, list(zip(ix.tolist(), iz.tolist(), mv.tolist(),
+                                                               strict=True)))
 
         lead = scene.lead
         cars = []
@@ -652,8 +666,8 @@ class Renderer:
             extra += view[3]
         soft = None
         if cars:
-            fx, ok, clipped, soft = self._car_shadows(cars, sh, pattern)
-            hard.append(fx[ok])
+            fx, clipped, soft = self._car_shadows(cars, sh, pattern)
+            hard.append(fx)
             extra += clipped
         polys = np.concatenate(hard) if len(hard) > 1 else (hard[0] if hard else np.zeros((0, 6, 2), np.int32))
         if len(polys) or extra:
@@ -692,40 +706,49 @@ class Renderer:
         """Ground shadows of the cars' boxes in fixed point.
 
         The shadow of a box on the ground is its footprint swept along the sun's
-        ground displacement: a hexagon, built here for all cars at once. Returns
-        ``(fx, ok, clipped, soft)``: the hexagons ``(N, 6, 2)`` of the traffic,
-        which of them to draw, near-clipped polygons of the rest, and the lead's
-        polygon (shrunk for an anti-aliased fill) or None.
+        ground displacement: a hexagon (:func:`_swept_rect`), here in Python scalars
+        (a dozen cars). Returns ``(hexes, clipped, soft)``: the traffic's hexagons
+        ``(N, 6, 2)`` shrunk for ``LINE_8``, near-clipped polygons of other sizes, and
+        the lead's polygon shrunk for an anti-aliased fill (or None).
         """
-        n = len(cars)
-        a = np.empty((5, n))
-        for i, (z_near, x_c, _, car, _) in enumerate(cars):
-            a[:, i] = (x_c - 0.5 * car.width, z_near, car.width, car.length, 0.92 * car.height)
-        x0, z0, w, ln, hgt = a  # 0.92: the cabin is narrower than the footprint
-        g = _swept_many(x0, x0 + w, z0, z0 + ln, sh[0] * hgt, sh[1] * hgt, pattern)
-        ok = g[:, :, 2].min(axis=1) >= self._z_ground_min
-        uv = self._proj(np.where(ok[:, None, None], g, 1.0))
-        lead = np.array([c[4] for c in cars])
-        d = np.where(lead, AA_INSET, 0.5)
-        c = uv.sum(axis=1, keepdims=True)
-        c *= 1.0 / 6.0
-        r = uv - c
-        fx = _fix(c + np.copysign(np.maximum(np.abs(r) - d[:, None, None], 0.0), r))
-        soft = None
+        zmin = self._z_ground_min
+        proj = self._proj_py
+        pat = pattern[3]
+        hexes: list[int] = []
         clipped = []
-        for i in np.nonzero(lead | ~ok)[0].tolist():
-            if ok[i]:
-                poly = fx[i]
-            else:  # rare: a shadow reaching under the camera
-                p3 = _clip_near(g[i], self._z_ground_min)
+        soft = None
+        for z_near, x_c, _, car, is_lead in cars:
+            hgt = 0.92 * car.height  # the cabin is narrower than the footprint
+            a, b = sh[0] * hgt, sh[1] * hgt
+            x0 = x_c - 0.5 * car.width
+            xs, zs = (x0, x0 + car.width), (z_near, z_near + car.length)
+            pts = [(xs[i] + m * a, zs[k] + m * b) for i, k, m in pat]
+            d = AA_INSET if is_lead else 0.5
+            if min(z for _, z in pts) < zmin:  # rare: a shadow reaching under the camera
+                p3 = _clip_near(np.array([(x, 0.0, z) for x, z in pts]), zmin)
                 if len(p3) < 3:
                     continue
-                poly = _fix(_shrink(self._proj(p3), float(d[i])))
-            if lead[i]:
+                poly = _fix(_shrink(self._proj(p3), d))
+            else:
+                uv = [proj(x, 0.0, z) for x, z in pts]
+                cu = sum(u for u, _ in uv) * (1.0 / 6.0)
+                cv = sum(v for _, v in uv) * (1.0 / 6.0)
+                flat = []
+                for u, v in uv:
+                    du, dv = u - cu, v - cv
+                    du = (du - d if du > d else 0.0) if du >= 0 else (du + d if du < -d else 0.0)
+                    dv = (dv - d if dv > d else 0.0) if dv >= 0 else (dv + d if dv < -d else 0.0)
+                    flat.append(round((cu + du) * ONE))
+                    flat.append(round((cv + dv) * ONE))
+                if not is_lead:
+                    hexes += flat
+                    continue
+                poly = np.array(flat, np.int32).reshape(6, 2)
+            if is_lead:
                 soft = poly
             else:
                 clipped.append(poly)
-        return fx, ok & ~lead, clipped, soft
+        return np.array(hexes, np.int32).reshape(-1, 6, 2), clipped, soft
 
     def _soft_shadow(self, img: np.ndarray, poly: np.ndarray) -> None:
         """Darken the ground under ``poly`` with anti-aliased edges (the lead car's)."""
@@ -796,18 +819,8 @@ class Renderer:
         """
         trees, neg_s, blds = self._scenery_window(seed, s_cam, light, sh, pattern)
         zmin = self._z_ground_min
-        f, cx, cy, h = self._f, self._cx, self._cy, self._h
-        if self._level:
-            def proj(x: float, y: float, z: float) -> tuple[float, float]:
-                k = f / z
-                return cx + x * k, cy + (h - y) * k
-        else:
-            cp, sp = math.cos(self.config.pitch), math.sin(self.config.pitch)
-
-            def proj(x: float, y: float, z: float) -> tuple[float, float]:
-                dy = y - h
-                k = f / (z * cp - dy * sp)
-                return cx + x * k, cy - (dy * cp + z * sp) * k
+        f = self._f
+        proj = self._proj_py
 
         def quad(pts: tuple) -> None:  # 4 points, shrunk by 0.5 px per axis for LINE_8
             uv = [proj(*p) for p in pts]
