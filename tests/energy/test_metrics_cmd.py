@@ -28,9 +28,14 @@ def test_table_and_json(write_log: Callable[..., Path]) -> None:
 
 
 def test_registered_in_the_vacc_group() -> None:
-    from vacc.cli import main
+    import click
 
-    assert "metrics" in main.commands
+    from vacc.cli import main
+    from vacc.metrics_cmd import metrics
+
+    ctx = click.Context(main)
+    assert "metrics" in main.list_commands(ctx)
+    assert main.get_command(ctx, "metrics") is metrics
 
 
 @pytest.mark.parametrize(
