@@ -695,11 +695,22 @@ class Renderer:
             if view[1] is not None:
                 self._draw_trees(img, view[1])
         # 3. cars, far to near
+        if self._level:  # cars wholly beside the picture (their shadows are drawn above)
+            cars = [c for c in cars if self._in_view(c)]
         if cars:
             for fq, faces in self._car_geometry(cars, light):
                 for j, col in faces:
                     cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
         return img
+
+    def _in_view(self, item: tuple) -> bool:
+        """Whether a car's box reaches into the picture (level camera: u depends on X/Z only)."""
+        z_near, x_c, _, car, _ = item
+        x0, x1 = x_c - 0.5 * car.width, x_c + 0.5 * car.width
+        z_far = z_near + car.length
+        right = self._cx + self._f * x1 / (z_near if x1 >= 0 else z_far)
+        left = self._cx + self._f * x0 / (z_near if x0 <= 0 else z_far)
+        return right >= -2.0 and left <= self.config.width + 1.0
 
     # ------------------------------------------------------------------- shadows
     def _car_shadows(self, cars: list, sh: tuple[float, float], pattern: tuple) -> tuple:
@@ -820,6 +831,7 @@ class Renderer:
         trees, neg_s, blds = self._scenery_window(seed, s_cam, light, sh, pattern)
         zmin = self._z_ground_min
         f = self._f
+        width = self.config.width
         proj = self._proj_py
 
         def quad(pts: tuple) -> None:  # 4 points, shrunk by 0.5 px per axis for LINE_8
@@ -849,19 +861,22 @@ class Renderer:
             z1 = zb + ln
             fog = 1.0 - math.exp(-z0 / sc.FOG_DISTANCE)
             g = 1.0 - fog
-            q0 = len(quads) >> 3
-            near = zb >= zmin
-            if near:
-                quad(((xb, 0.0, z0), (x1, 0.0, z0), (x1, hgt, z0), (xb, hgt, z0)))
-            quad(((xb, 0.0, z0), (xb, 0.0, z1), (xb, hgt, z1), (xb, hgt, z0)))
-            nwin = floors if z0 < 120.0 else 0  # window bands on the road-facing wall
-            for k in range(nwin):
-                ya, yb = 1.2 + 3.5 * k, 2.4 + 3.5 * k
-                quad(((xb, ya, z0 + 1.0), (xb, ya, z1 - 1.0), (xb, yb, z1 - 1.0), (xb, yb, z0 + 1.0)))
-            wall = (c_wall[0] * g + hr * fog, c_wall[1] * g + hg * fog, c_wall[2] * g + hb_ * fog)
-            bld_draw.append((q0, near, nwin, wall,
-                             (c_near[0] * g + hr * fog, c_near[1] * g + hg * fog, c_near[2] * g + hb_ * fog),
-                             (0.45 * wall[0], 0.45 * wall[1], 0.45 * wall[2])))
+            # out of the picture (beside the camera): its shadow may still show
+            ua, ub = proj(xb, 0.0, z1)[0], proj(xb, hgt, z1)[0]
+            if (min(ua, ub) <= width + 1.0) if xb > 0 else (max(ua, ub) >= -2.0):
+                q0 = len(quads) >> 3
+                near = zb >= zmin
+                if near:
+                    quad(((xb, 0.0, z0), (x1, 0.0, z0), (x1, hgt, z0), (xb, hgt, z0)))
+                quad(((xb, 0.0, z0), (xb, 0.0, z1), (xb, hgt, z1), (xb, hgt, z0)))
+                nwin = floors if z0 < 120.0 else 0  # window bands on the road-facing wall
+                for k in range(nwin):
+                    ya, yb = 1.2 + 3.5 * k, 2.4 + 3.5 * k
+                    quad(((xb, ya, z0 + 1.0), (xb, ya, z1 - 1.0), (xb, yb, z1 - 1.0), (xb, yb, z0 + 1.0)))
+                wall = (c_wall[0] * g + hr * fog, c_wall[1] * g + hg * fog, c_wall[2] * g + hb_ * fog)
+                bld_draw.append((q0, near, nwin, wall,
+                                 (c_near[0] * g + hr * fog, c_near[1] * g + hg * fog, c_near[2] * g + hb_ * fog),
+                                 (0.45 * wall[0], 0.45 * wall[1], 0.45 * wall[2])))
             if zb <= SHADOW_FAR:
                 if zb + shz_min < zmin:  # reaches beside the camera: clip
                     g6 = np.array([(gx, 0.0, gs - s_cam) for gx, gs in zip(shx, shs, strict=True)])
@@ -883,20 +898,21 @@ class Renderer:
             g = 1.0 - fog
             rad = int(max(f * r / z - 0.5, 0.0) * ONE)
             u, v = proj(x, yc, z)
-            crown = ((round(u * ONE), round(v * ONE)), rad,
-                     (c_crown[0] * g + hr * fog, c_crown[1] * g + hg * fog, c_crown[2] * g + hb_ * fog))
-            trunk: tuple | None = None
-            lit: tuple | None = None
-            if rad > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
-                qi = len(quads) >> 3
-                quad(((x - 0.18, 0.0, z), (x + 0.18, 0.0, z), (x + 0.18, yc, z), (x - 0.18, yc, z)))
-                trunk = (qi, (_TRUNK_RGB[0] * g + hr * fog, _TRUNK_RGB[1] * g + hg * fog,
-                              _TRUNK_RGB[2] * g + hb_ * fog))
-            if rad > 5 * ONE:
-                u, v = proj(x + ldx, yc + ldy, z)
-                lit = ((round(u * ONE), round(v * ONE)), int(0.6 * rad),
-                       (c_lit[0] * g + hr * fog, c_lit[1] * g + hg * fog, c_lit[2] * g + hb_ * fog))
-            tree_draw.append((trunk, crown, lit))
+            if -2 * ONE <= u * ONE + rad and u * ONE - rad <= (width + 1) * ONE:  # in the picture
+                crown = ((round(u * ONE), round(v * ONE)), rad,
+                         (c_crown[0] * g + hr * fog, c_crown[1] * g + hg * fog, c_crown[2] * g + hb_ * fog))
+                trunk: tuple | None = None
+                lit: tuple | None = None
+                if rad > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
+                    qi = len(quads) >> 3
+                    quad(((x - 0.18, 0.0, z), (x + 0.18, 0.0, z), (x + 0.18, yc, z), (x - 0.18, yc, z)))
+                    trunk = (qi, (_TRUNK_RGB[0] * g + hr * fog, _TRUNK_RGB[1] * g + hg * fog,
+                                  _TRUNK_RGB[2] * g + hb_ * fog))
+                if rad > 5 * ONE:
+                    u, v = proj(x + ldx, yc + ldy, z)
+                    lit = ((round(u * ONE), round(v * ONE)), int(0.6 * rad),
+                           (c_lit[0] * g + hr * fog, c_lit[1] * g + hg * fog, c_lit[2] * g + hb_ * fog))
+                tree_draw.append((trunk, crown, lit))
             if z < SHADOW_FAR and z - reach > zmin:  # shadow clear of the camera
                 for gx, gs in zip(shx, shs, strict=True):
                     u, v = proj(gx, 0.0, gs - s_cam)

@@ -219,3 +219,47 @@ def test_snapshot_cli_rejects_bad_options(tmp_path: Path, args: list[str]) -> No
     res = CliRunner().invoke(snapshot, [x for kv in base.items() for x in kv])
     assert res.exit_code == 2
     assert "Error" in res.output
+
+
+def test_new_seed_renders_the_same_with_cold_or_warm_caches() -> None:
+    """The per-seed sky, the shared ground layers and the scenery cache hold no history."""
+    from sim_server import render as render_mod
+
+    scenes = [snapshot_scene(gap, "ev", seed=11) for gap in (12.0, 55.0)]
+    scenes += [_scene(CarView(dx=30.0, lane=0), host_s=h, scenery_seed=11, light_azimuth=-2.4,
+                      light_elevation=0.5) for h in (0.0, 4.0, 250.0)]
+    render_mod._GROUND_CACHE.clear()
+    cold = [Renderer(CFG).render(s) for s in scenes]  # a fresh renderer per frame, empty caches
+    warm = Renderer(CFG)
+    for seed in (1, 2, 3):  # other seeds, dash phases, lights and traffic first
+        for gap in (20.0, 80.0):
+            warm.render(snapshot_scene(gap, "ice", seed=seed))
+    for s, c in zip(scenes, cold, strict=True):
+        assert warm.render(s).tobytes() == c.tobytes()
+    other = Renderer(CFG)  # a second instance sharing the ground layers
+    assert all(other.render(s).tobytes() == c.tobytes() for s, c in zip(scenes, cold, strict=True))
+
+
+def test_seed_changes_only_hills_and_scenery() -> None:
+    """The sky row band holds the seed's hills; the road is the same for every seed."""
+    r = Renderer(CFG)
+    a = r.render(_scene(scenery_seed=1))
+    b = r.render(_scene(scenery_seed=2))
+    assert not np.array_equal(a, b)
+    r0 = Renderer(CFG, scenery=False)
+    assert np.array_equal(r0.render(_scene(scenery_seed=1)), r0.render(_scene(scenery_seed=2)))
+
+
+def test_distant_traffic_is_still_drawn() -> None:
+    """Cars a few pixels wide use a three-face model, but they are there."""
+    r = Renderer(CFG, scenery=False)
+    far = CarView(dx=180.0, lane=1, color=(30, 60, 220))
+    with_car = r.render(_scene(far)).astype(int)
+    without = r.render(_scene()).astype(int)
+    z = far.dx + CFG.setback
+    cx, cy = CFG.principal_point
+    u = int(round(cx + CFG.focal_px * 3.7 / z))
+    v = int(round(cy + CFG.focal_px * (CFG.mount_height - 0.6) / z))
+    diff = np.abs(with_car - without).sum(axis=2)
+    assert diff[v - 2:v + 3, u - 3:u + 4].max() > 60
+    assert diff.sum() > 0 and np.count_nonzero(diff) < 200
