@@ -448,7 +448,7 @@ class Renderer:
         self._win: tuple | None = None
         self._win_key: tuple | None = None
         self._scenery = sc.SceneryCache()
-        self._face_cache: dict[tuple, list] = {}
+        self._face_cache: dict[tuple, tuple[np.ndarray, list]] = {}
         cfg = self.config
         self._f = cfg.focal_px
         self._h = cfg.mount_height
@@ -698,9 +698,10 @@ class Renderer:
         if self._level:  # cars wholly beside the picture (their shadows are drawn above)
             cars = [c for c in cars if self._in_view(c)]
         if cars:
-            for fq, faces in self._car_geometry(cars, light):
-                for j, col in faces:
-                    cv2.fillConvexPoly(img, fq[j], col, AA, SHIFT)
+            fq, cols = self._car_geometry(cars, light)
+            fill = cv2.fillConvexPoly
+            for j, col in enumerate(cols):
+                fill(img, fq[j], col, AA, SHIFT)
         return img
 
     def _in_view(self, item: tuple) -> bool:
@@ -948,11 +949,12 @@ class Renderer:
             if lit is not None:
                 circle(img, lit[0], lit[1], lit[2], -1, L8, SHIFT)
 
-    def _car_faces(self, item: tuple, light: tuple, lod: str) -> tuple[_CarTemplate, list]:
-        """The template of a car and its visible faces as ``(face_row, colour)``.
+    def _car_faces(self, item: tuple, light: tuple, lod: str) -> tuple[np.ndarray, list]:
+        """A car's visible faces: their corners ``(F, 4, 3)`` in the car's frame (scaled to
+        its size) and their colours, in drawing order.
 
-        Cached per template, visibility case, body colour and light: the world sends
-        the same few cars every step.
+        Cached per template, visibility case, size, body colour and light: the world
+        sends the same few cars every step.
         """
         z_near, x_c, oncoming, car, _ = item
         if not self.car_detail:
@@ -966,10 +968,10 @@ class Renderer:
         tpl = _TEMPLATES[kind]
         sx, sy = car.width / CAR_WIDTH, car.height / CAR_HEIGHT
         side = 1 if x_c - 0.5 * car.width > 0 else (-1 if x_c + 0.5 * car.width < 0 else 0)
-        key = (kind, side, car.color, car.height, car.width, light)
+        key = (kind, side, car.color, car.height, car.width, car.length, light)
         hit = self._face_cache.get(key)
         if hit is not None:
-            return tpl, hit
+            return hit
         body = car.color
         h = self._h
         cols: dict[str, tuple[float, float, float]] = {}
@@ -1002,39 +1004,33 @@ class Renderer:
                     col = _shade(base, lam, 0.0)
                 cols[role] = col
             out.append((j, col))
+        pts = tpl.points * np.array([sx, sy, car.length / CAR_LENGTH])
+        quads = pts[tpl.index[[j for j, _ in out]]] if out else np.zeros((0, 4, 3))
         if len(self._face_cache) > 512:
             self._face_cache.clear()
-        self._face_cache[key] = out
-        return tpl, out
+        faces = (quads, [col for _, col in out])
+        self._face_cache[key] = faces
+        return faces
 
-    def _car_geometry(self, cars: list, light: tuple) -> list[tuple[np.ndarray, list]]:
-        """Fixed-point faces ``(F, 4, 2)`` and face lists of all cars, in one projection."""
-        tpls, face_lists, scales, offs, counts = [], [], [], [], []
+    def _car_geometry(self, cars: list, light: tuple) -> tuple[np.ndarray, list]:
+        """The visible faces of all cars in fixed point ``(F, 4, 2)``, in one projection,
+        and their colours, in drawing order (cars far to near)."""
+        parts, offs, counts = [], [], []
+        cols: list = []
         for item in cars:
             z_near, x_c, _, car, is_lead = item
             lod = ""
             if not is_lead:
                 w_px = self._f * car.width / z_near
                 lod = "_tiny" if w_px < TINY_WIDTH else ("_lod" if w_px < LOD_WIDTH else "")
-            tpl, faces = self._car_faces(item, light, lod)
-            tpls.append(tpl)
-            face_lists.append(faces)
-            scales.append((car.width / CAR_WIDTH, car.height / CAR_HEIGHT, car.length / CAR_LENGTH))
+            quads, faces = self._car_faces(item, light, lod)
+            parts.append(quads)
+            cols += faces
             offs.append((x_c, 0.0, z_near))
-            counts.append(len(tpl.points))
-        p = np.concatenate([t.points for t in tpls])
-        p *= np.repeat(np.array(scales), counts, axis=0)
-        p += np.repeat(np.array(offs), counts, axis=0)
-        uv = self._proj(p)
-        base = np.cumsum([0] + counts[:-1])
-        idx = np.concatenate([t.index + b for t, b in zip(tpls, base, strict=True)])
-        fq = _fix(_shrink(uv[idx]))  # (sum F, 4, 2)
-        out = []
-        f0 = 0
-        for t, faces in zip(tpls, face_lists, strict=True):
-            out.append((fq[f0:f0 + len(t.index)], faces))
-            f0 += len(t.index)
-        return out
+            counts.append(len(faces))
+        p = np.concatenate(parts)
+        p += np.repeat(np.array(offs), counts, axis=0)[:, None, :]
+        return _fix(_shrink(self._proj(p))), cols
 
 
 _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
