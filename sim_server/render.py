@@ -14,15 +14,21 @@ point is ``(c_x, c_y - f tan(pitch))``.
 
 How a frame is made (painter's algorithm, far to near):
 
-1. a cached background for the current lane-dash phase bucket: sky gradient,
-   distant hills, grass, both carriageways, median barrier, solid lines, haze, and
-   the dashes at that phase (:data:`PHASE_BUCKETS` per dash period);
+1. the sky band (rows above the horizon: gradient, the seed's hills; cached per seed)
+   stacked on the ground band for the current lane-dash phase bucket (grass, both
+   carriageways, median barrier, lines, haze and dashes; :data:`PHASE_BUCKETS` per
+   dash period, cached once per camera configuration for all seeds);
 2. ground shadows: trees, buildings and traffic into one binary mask, copied from a
-   darkened copy of the background; the lead car's shadow with anti-aliased edges;
-3. buildings far to near, then trees and cars sorted far to near;
-4. the lead car is drawn 4x supersampled into a premultiplied layer and area-
-   averaged, so its edges have exact sub-pixel coverage; everything else uses
-   ``cv2.LINE_AA`` with 4 fractional bits (1/16 px) per coordinate.
+   darkened twin of the ground band; the lead car's shadow with anti-aliased edges;
+3. buildings, then trees, then cars, each far to near (scenery stands beside the
+   road, so it never hides a car);
+4. cars use ``cv2.LINE_AA`` with 4 fractional bits (1/16 px) per coordinate, shrunk
+   by :data:`AA_INSET` so their edge pixels hold the true coverage; scenery uses
+   aliased ``LINE_8`` fills.
+
+Per-frame cost is call overhead, not pixels: scenery geometry is computed in Python
+scalars from a per-tile cache, car faces in one numpy pass, and objects wholly outside
+the picture are skipped.
 """
 
 from __future__ import annotations
@@ -49,7 +55,7 @@ AMBIENT = 0.5  # share of light on a face turned away from the sun
 DIFFUSE = 0.6  # Lambert term weight
 MIN_SUN_ELEVATION = 0.2  # [rad] caps shadow length at ~5 object heights
 SCENERY_FAR = 220.0  # [m] trees and buildings are drawn up to here (cost grows with it)
-SHADOW_FAR = 150.0  # [m] scenery shadows beyond this are thin slivers at the horizon
+SHADOW_FAR = 150.0  # [m] scenery and traffic shadows beyond this are thin slivers at the horizon
 AA_INSET = 0.7  # [px] cv2's LINE_AA fill paints this far beyond each edge (measured)
 LOD_WIDTH = 12.0  # [px] traffic narrower than this is drawn without small parts
 TINY_WIDTH = 6.0  # [px] traffic narrower than this is drawn as three faces
@@ -729,7 +735,10 @@ class Renderer:
         hexes: list[int] = []
         clipped = []
         soft = None
+        level, f, cx, cy, h = self._level, self._f, self._cx, self._cy, self._h
         for z_near, x_c, _, car, is_lead in cars:
+            if z_near > SHADOW_FAR and not is_lead:
+                continue  # a sliver at the horizon, like the scenery's
             hgt = 0.92 * car.height  # the cabin is narrower than the footprint
             a, b = sh[0] * hgt, sh[1] * hgt
             x0 = x_c - 0.5 * car.width
@@ -742,7 +751,10 @@ class Renderer:
                     continue
                 poly = _fix(_shrink(self._proj(p3), d))
             else:
-                uv = [proj(x, 0.0, z) for x, z in pts]
+                if level:  # the projection inlined, in the same order as _proj
+                    uv = [(x / z * f + cx, h / z * f + cy) for x, z in pts]
+                else:
+                    uv = [proj(x, 0.0, z) for x, z in pts]
                 cu = sum(u for u, _ in uv) * (1.0 / 6.0)
                 cv = sum(v for _, v in uv) * (1.0 / 6.0)
                 flat = []
@@ -835,8 +847,13 @@ class Renderer:
         width = self.config.width
         proj = self._proj_py
 
+        level, cx, cy, h = self._level, self._cx, self._cy, self._h
+
         def quad(pts: tuple) -> None:  # 4 points, shrunk by 0.5 px per axis for LINE_8
-            uv = [proj(*p) for p in pts]
+            if level:  # the projection inlined, in the same order as _proj
+                uv = [(x / z * f + cx, (h - y) / z * f + cy) for x, y, z in pts]
+            else:
+                uv = [proj(*p) for p in pts]
             mu = 0.25 * (uv[0][0] + uv[1][0] + uv[2][0] + uv[3][0])
             mv = 0.25 * (uv[0][1] + uv[1][1] + uv[2][1] + uv[3][1])
             for u, v in uv:
