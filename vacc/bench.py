@@ -94,19 +94,15 @@ def lockstep(steps: int, reps: int, image_format: str = "none", size: tuple[int,
     return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}, "image_bytes": nbytes}
 
 
-def agent_env(steps: int, reps: int) -> dict[str, Any]:
-    """Steps/s of the Gymnasium env as the agent uses it: gray 200x200 camera over
-    UDP from a real server process, preprocessing and the 8-frame stack."""
-    from agent_client.env import VisionACCEnv
-
+def _env_rate(env: Any, action: int, steps: int, reps: int) -> dict[str, Any]:
+    """Steps/s of a Gymnasium env over ``reps`` timed repetitions after a warm-up one."""
     rates = []
-    env = VisionACCEnv(trajectory="random")
     try:
         env.reset(seed=0)
         for rep in range(reps + 1):
             t0 = time.perf_counter()
             for _ in range(steps):
-                _, _, terminated, truncated, _ = env.step(10)
+                _, _, terminated, truncated, _ = env.step(action)
                 if terminated or truncated:
                     env.reset()
             if rep:
@@ -114,6 +110,14 @@ def agent_env(steps: int, reps: int) -> dict[str, Any]:
     finally:
         env.close()
     return {"steps_per_s": _reps(rates)}
+
+
+def agent_env(steps: int, reps: int) -> dict[str, Any]:
+    """Steps/s of the Gymnasium env as the agent uses it: gray 200x200 camera over
+    UDP from a real server process, preprocessing and the 8-frame stack."""
+    from agent_client.env import VisionACCEnv
+
+    return _env_rate(VisionACCEnv(trajectory="random"), 10, steps, reps)  # action 10: u = 0
 
 
 HIGHWAY_CONFIG = {
@@ -138,21 +142,7 @@ def highway_peer(steps: int, reps: int) -> dict[str, Any]:
         import highway_env  # noqa: F401 - registers highway-v0
     except ImportError:
         return {"error": "highway-env is not installed: pip install 'vacc[bench]' (make bench does)"}
-    env = gym.make("highway-v0", config=HIGHWAY_CONFIG)
-    rates = []
-    try:
-        env.reset(seed=0)
-        for rep in range(reps + 1):
-            t0 = time.perf_counter()
-            for _ in range(steps):
-                _, _, terminated, truncated, _ = env.step(1)  # IDLE
-                if terminated or truncated:
-                    env.reset()
-            if rep:
-                rates.append(steps / (time.perf_counter() - t0))
-    finally:
-        env.close()
-    return {"steps_per_s": _reps(rates)}
+    return _env_rate(gym.make("highway-v0", config=HIGHWAY_CONFIG), 1, steps, reps)  # action 1: IDLE
 
 
 def _render_scenes(seed: int, n: int) -> list:
