@@ -110,6 +110,8 @@ class Config:
     """Environment steps per gradient step."""
     max_grad_norm: float = 10.0
     """Gradient norm clip."""
+    n_step: int = 1
+    """Steps of real rewards before bootstrapping (n-step return, cut at episode ends)."""
     absorbing_terminal: bool = True
     """Value a termination (collision, gap > 300 m) as its reward forever, r / (1 - γ),
     instead of 0: with Table 1's rewards, 0 would make crashing or dropping back past
@@ -144,7 +146,7 @@ class Config:
             raise ValueError(f"reward {self.reward!r} is not one of {sorted(REWARDS)}")
         if self.scenario not in ("ice", "ev"):
             raise ValueError(f"scenario {self.scenario!r} is not 'ice' or 'ev'")
-        for name in ("total_steps", "buffer_size", "batch_size", "train_every", "target_sync_every", "frame_stack", "stack_stride"):
+        for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every", "frame_stack", "stack_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
         if not 0.0 <= self.gamma < 1.0:
@@ -295,35 +297,73 @@ class ReplayMemory:
         first = np.minimum(idx - s * np.minimum(k - 1, self.pos[j] // s), idx + 1 - s * np.minimum(k - 1, (self.pos[j] + 1) // s))
         return self.has_next[j] & (idx + 1 < self.total) & (first >= oldest)
 
-    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """A uniform batch of valid transitions.
+    def _n_step(self, idx: np.ndarray, n: int, gamma: float) -> dict[str, np.ndarray]:
+        """n-step returns from valid starts ``idx`` ``[B]``, stopping at episode ends."""
+        B = len(idx)
+        returns = np.zeros(B, np.float64)
+        discounts = np.ones(B, np.float64)  # γ^m
+        m = np.zeros(B, np.int64)  # real rewards summed
+        last_reward = np.zeros(B, np.float32)
+        terminated = np.zeros(B, np.bool_)
+        truncated = np.zeros(B, np.bool_)
+        alive = np.ones(B, np.bool_)
+        for k in range(n):
+            i = idx + k
+            j = i % self.capacity
+            ok = alive & self.has_next[j] & (i + 1 < self.total)
+            returns += np.where(ok, discounts * self.rewards[j], 0.0)
+            last_reward = np.where(ok, self.rewards[j], last_reward)
+            terminated |= ok & self.terminated[j]
+            truncated |= ok & self.truncated[j]
+            discounts = np.where(ok, discounts * gamma, discounts)
+            m += ok
+            alive = ok & ~self.terminated[j] & ~self.truncated[j]
+        return {"returns": returns, "discounts": discounts, "m": m, "last_reward": last_reward, "terminated": terminated, "truncated": truncated}
+
+    def sample(self, batch_size: int, rng: np.random.Generator, n_step: int = 1, gamma: float = 0.99) -> dict[str, np.ndarray]:
+        """A uniform batch of valid transitions, with n-step returns.
 
         Returns:
-            ``indices`` ``[B]`` (absolute slots), ``frames`` ``[B, S, H, W]`` uint8, ``speeds`` ``[B, S]``, ``actions`` ``[B]``,
-            ``rewards`` ``[B]``, ``terminated`` ``[B]``, ``truncated`` ``[B]``,
-            ``next_frames``, ``next_speeds``.
+            ``indices`` ``[B]`` (absolute slots), ``frames`` ``[B, S, H, W]`` uint8,
+            ``speeds`` ``[B, S]``, ``actions`` ``[B]``, ``rewards`` ``[B]`` (one step),
+            ``returns`` ``[B]`` (Σ γ^k r over up to ``n_step`` steps), ``discounts``
+            ``[B]`` (γ^m, m the rewards summed), ``terminal_rewards`` ``[B]`` (the last
+            of them), ``terminated``/``truncated`` ``[B]`` (whether the episode ended so
+            within those m steps), ``next_frames``, ``next_speeds`` (m steps on).
         """
         lo = max(0, self.total - self.capacity)
-        idx = np.empty(0, np.int64)
+        picked: list[np.ndarray] = []
+        got = 0
         for _ in range(1000):  # rejection sampling; almost every slot is valid
             cand = rng.integers(lo, self.total, size=2 * batch_size)
-            idx = np.concatenate([idx, cand[self._valid(cand)]])
-            if len(idx) >= batch_size:
+            cand = cand[self._valid(cand)]
+            if n_step > 1:  # the stack m steps on may reach a frame further back
+                m = self._n_step(cand, n_step, gamma)["m"]
+                last = cand + m
+                back = self.stack_stride * np.minimum(self.frame_stack - 1, self.pos[last % self.capacity] // self.stack_stride)
+                cand = cand[last - back >= self.total - self.capacity]
+            picked.append(cand)
+            got += len(cand)
+            if got >= batch_size:
                 break
         else:
             raise RuntimeError("replay memory holds no complete transition")
-        idx = idx[:batch_size]
+        idx = np.concatenate(picked)[:batch_size]
         j = idx % self.capacity
+        ns = self._n_step(idx, n_step, gamma)
         frames, speeds = self.stack(idx)
-        next_frames, next_speeds = self.stack(idx + 1)
+        next_frames, next_speeds = self.stack(idx + ns["m"])
         return {
             "indices": idx,
             "frames": frames,
             "speeds": speeds,
             "actions": self.actions[j].astype(np.int64),
             "rewards": self.rewards[j],
-            "terminated": self.terminated[j],
-            "truncated": self.truncated[j],
+            "returns": ns["returns"].astype(np.float32),
+            "discounts": ns["discounts"].astype(np.float32),
+            "terminal_rewards": ns["last_reward"],
+            "terminated": ns["terminated"],
+            "truncated": ns["truncated"],
             "next_frames": next_frames,
             "next_speeds": next_speeds,
         }
@@ -371,27 +411,27 @@ class ReplayMemory:
 
 
 def double_dqn_target(
-    rewards: torch.Tensor,
+    returns: torch.Tensor,
     terminated: torch.Tensor,
     next_q_online: torch.Tensor,
     next_q_target: torch.Tensor,
-    gamma: float,
-    absorbing_terminal: bool = True,
+    discounts: torch.Tensor,
+    terminal_values: torch.Tensor,
 ) -> torch.Tensor:
-    """TD target y = r + γ Q_target(s', argmax_a Q_online(s', a)), cut at terminations.
+    """TD target y = G + γ^m Q_target(s', argmax_a Q_online(s', a)), cut at terminations.
 
     The online network picks the next action, the target network scores it.
-    Truncated transitions (time limit) bootstrap like any other; only
-    ``terminated`` ones do not. A terminated transition's target is ``r`` or,
-    with ``absorbing_terminal``, ``r / (1 - γ)`` (the terminal reward forever).
+    Truncated transitions (time limit) bootstrap like any other; only ``terminated``
+    ones do not: they take ``terminal_values`` instead (0, or the terminal reward
+    forever with :attr:`Config.absorbing_terminal`). One-step: G = r, γ^m = γ.
 
     Args:
-        rewards: ``[B]``.
-        terminated: ``[B]`` bool.
-        next_q_online: ``[B, A]`` online Q-values of the next observations.
-        next_q_target: ``[B, A]`` target Q-values of the next observations.
-        gamma: discount per step.
-        absorbing_terminal: see :attr:`Config.absorbing_terminal`.
+        returns: ``[B]`` G = Σ_{k<m} γ^k r_k.
+        terminated: ``[B]`` bool, the episode terminated within the m steps.
+        next_q_online: ``[B, A]`` online Q-values of the observations m steps on.
+        next_q_target: ``[B, A]`` target Q-values of the same.
+        discounts: ``[B]`` γ^m.
+        terminal_values: ``[B]`` the value after a termination.
 
     Returns:
         ``[B]`` targets.
@@ -399,8 +439,8 @@ def double_dqn_target(
     next_actions = next_q_online.argmax(dim=1, keepdim=True)  # [B, 1]: online net picks
     next_values = next_q_target.gather(1, next_actions).squeeze(1)  # [B]: target net scores
     done = terminated.float()  # [B]
-    terminal_value = rewards / (1.0 - gamma) if absorbing_terminal else rewards  # [B]
-    return (1.0 - done) * (rewards + gamma * next_values) + done * terminal_value  # [B]
+    bootstrap = (1.0 - done) * next_values + done * terminal_values  # [B]
+    return returns + discounts * bootstrap  # [B]
 
 
 # ---------------------------------------------------------------------- checkpoints
@@ -540,31 +580,6 @@ class DDQNController:
             raise ValueError("the ddqn controller needs camera images; open the session with image_format='gray'")
         stacked = self.stacker.push(preprocess(image), float(obs["v_host"]))
         return float(FORCES[self.act(stacked)])
-
-
-def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str, float]:
-    """Median/p90 time [s] from a received 200x200 gray frame to the chosen action.
-
-    Preprocessing, stacking and the forward pass at batch 1, on one CPU thread.
-    """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        q = q if q is not None else QNetwork()
-        cfg = Config()
-        ctl = DDQNController(q.cpu(), cfg)
-        rng = np.random.default_rng(0)
-        image = rng.integers(0, 256, (200, 200), dtype=np.uint8)
-        obs = {"image": image.tobytes(), "image_shape": [200, 200, 1], "v_host": 30.0}
-        times = []
-        for i in range(repeats + 20):
-            t0 = time.perf_counter()
-            ctl(obs)
-            if i >= 20:
-                times.append(time.perf_counter() - t0)
-        return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
-    finally:
-        torch.set_num_threads(threads)
 
 
 # ----------------------------------------------------------------------- evaluation
@@ -801,7 +816,8 @@ def train(
     last_eval: list[dict[str, Any]] = []
     t_start, steps_at_start = time.perf_counter(), state.global_step
     next_checkpoint = state.global_step + cfg.checkpoint_every
-    next_eval = state.global_step + cfg.eval_every if cfg.eval_every > 0 else math.inf
+    # On the eval_every grid, so that a resumed run evaluates where it would have.
+    next_eval = (state.global_step // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else math.inf
     last_eval_step = -1
 
     def run_eval() -> None:
@@ -854,13 +870,15 @@ def train(
                 step = state.global_step
 
                 if step > cfg.learning_starts and step % cfg.train_every == 0:
-                    b = memory.sample(cfg.batch_size, np_rng)
+                    b = memory.sample(cfg.batch_size, np_rng, cfg.n_step, cfg.gamma)
                     t = {k: torch.from_numpy(v).to(device) for k, v in b.items() if k != "indices"}
                     with torch.no_grad():
                         next_q_online = q(t["next_frames"], t["next_speeds"])  # [B, A]
                         next_q_target = target(t["next_frames"], t["next_speeds"])  # [B, A]
+                        # after a termination: the terminal reward forever, r / (1 - γ), or 0
+                        terminal_values = t["terminal_rewards"] / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
                         td_target = double_dqn_target(
-                            t["rewards"], t["terminated"], next_q_online, next_q_target, cfg.gamma, cfg.absorbing_terminal
+                            t["returns"], t["terminated"], next_q_online, next_q_target, t["discounts"], terminal_values
                         )  # [B]
                     q_taken = q(t["frames"], t["speeds"]).gather(1, t["actions"][:, None]).squeeze(1)  # [B]
                     loss = F.smooth_l1_loss(q_taken, td_target)  # Huber

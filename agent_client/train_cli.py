@@ -43,6 +43,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--train-every", default=_D.train_every, show_default=True, type=click.IntRange(min=1), help="Environment steps per gradient step.")
 @click.option("--target-sync-every", default=_D.target_sync_every, show_default=True, type=click.IntRange(min=1))
 @click.option("--gamma", default=_D.gamma, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True))
+@click.option("--n-step", default=_D.n_step, show_default=True, type=click.IntRange(min=1), help="Rewards summed before bootstrapping (n-step return).")
 @click.option("--stack-stride", default=_D.stack_stride, show_default=True, type=click.IntRange(min=1), help="Control steps between stacked frames.")
 @click.option("--checkpoint-every", default=_D.checkpoint_every, show_default=True, type=click.IntRange(min=1))
 @click.option("--log-every", default=_D.log_every, show_default=True, type=click.IntRange(min=1), help="Steps between loss/Q-value scalars.")
@@ -69,6 +70,7 @@ def train(
     train_every: int,
     target_sync_every: int,
     gamma: float,
+    n_step: int,
     stack_stride: int,
     checkpoint_every: int,
     log_every: int,
@@ -90,7 +92,7 @@ def train(
         eval_seconds=eval_seconds, eval_trajectories=trajectories, episode_seconds=episode_seconds,
         buffer_size=buffer_size, learning_starts=learning_starts, exploration_steps=exploration_steps,
         end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
-        target_sync_every=target_sync_every, gamma=gamma, stack_stride=stack_stride,
+        target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride,
         checkpoint_every=checkpoint_every, log_every=log_every, torch_threads=threads, cuda=not no_cuda,
     )  # fmt: skip
     if resume and not (Path(out) / "latest.pt").exists():

@@ -112,23 +112,50 @@ def test_double_dqn_target_by_hand():
     terminated = torch.tensor([False, True, False, True])
     next_q_online = torch.tensor([[1.0, 5.0], [3.0, 2.0], [0.0, 1.0], [9.0, 0.0]])  # [B, A]
     next_q_target = torch.tensor([[10.0, 20.0], [30.0, 40.0], [50.0, 60.0], [70.0, 80.0]])  # [B, A]
-    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma=0.9, absorbing_terminal=False)
-    # online argmax: 1, -, 1, -; target scores them: 20, 60; terminations do not bootstrap
-    np.testing.assert_allclose(y.numpy(), [1 + 0.9 * 20, 2.0, 3 + 0.9 * 60, -1.0])
-    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma=0.9, absorbing_terminal=True)
-    np.testing.assert_allclose(y.numpy(), [19.0, 2.0 / 0.1, 57.0, -1.0 / 0.1], rtol=1e-6)
-    # the target net picks nothing: a plain DQN max would give 20 (row 0) and 60 (row 2) too,
-    # but row 1 would be 40 where the online net picks action 0 (30)
-    y = double_dqn_target(rewards, torch.zeros(4, dtype=torch.bool), next_q_online, next_q_target, 0.9, False)
+    gamma = torch.full((4,), 0.9)
+    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma, torch.zeros(4))
+    # online argmax: 1, -, 1, -; the target net scores them: 20, 60; terminations do not bootstrap
+    np.testing.assert_allclose(y.numpy(), [1 + 0.9 * 20, 2.0, 3 + 0.9 * 60, -1.0], rtol=1e-6)
+    absorbing = rewards / (1 - 0.9)  # the terminal reward forever
+    y = double_dqn_target(rewards, terminated, next_q_online, next_q_target, gamma, absorbing)
+    np.testing.assert_allclose(y.numpy(), [19.0, 2.0 / 0.1, 57.0, -1.0 / 0.1], rtol=1e-5)
+    # plain DQN (max of the target net) would give 40 and 80 in rows 1 and 3
+    y = double_dqn_target(rewards, torch.zeros(4, dtype=torch.bool), next_q_online, next_q_target, gamma, torch.zeros(4))
     np.testing.assert_allclose(y.numpy(), [19.0, 2 + 0.9 * 30, 57.0, -1 + 0.9 * 70], rtol=1e-6)
 
 
 def test_truncation_bootstraps_termination_does_not():
     ones = torch.ones(2, 21)
-    y_trunc = double_dqn_target(torch.zeros(2), torch.tensor([False, False]), ones, 10 * ones, 0.99, False)
-    y_term = double_dqn_target(torch.zeros(2), torch.tensor([True, True]), ones, 10 * ones, 0.99, False)
+    gamma = torch.full((2,), 0.99)
+    y_trunc = double_dqn_target(torch.zeros(2), torch.tensor([False, False]), ones, 10 * ones, gamma, torch.zeros(2))
+    y_term = double_dqn_target(torch.zeros(2), torch.tensor([True, True]), ones, 10 * ones, gamma, torch.zeros(2))
     np.testing.assert_allclose(y_trunc.numpy(), [9.9, 9.9], rtol=1e-6)
     np.testing.assert_allclose(y_term.numpy(), [0.0, 0.0])
+
+
+def test_n_step_returns_stop_at_episode_ends():
+    rng = np.random.default_rng(4)
+    memory = ReplayMemory(200, 8, 1)
+    expected, flags = _fill(memory, rng, [6, 4, 30], ["truncated", "terminated", "cut"])
+    batch = memory.sample(300, rng, n_step=3, gamma=0.5)
+    for b, i in enumerate(batch["indices"]):
+        g, disc, steps = 0.0, 1.0, 0
+        for k in range(3):
+            if i + k not in flags:  # past the episode's last observation
+                break
+            g += disc * memory.rewards[i + k]
+            disc *= 0.5
+            steps += 1
+            if any(flags[i + k]):
+                break
+        assert batch["returns"][b] == pytest.approx(g, rel=1e-5)
+        assert batch["discounts"][b] == pytest.approx(disc)
+        assert batch["terminal_rewards"][b] == pytest.approx(memory.rewards[i + steps - 1])
+        np.testing.assert_array_equal(batch["next_frames"][b], expected[i + steps]["frames"])
+        ended = [flags[i + k] for k in range(steps)]
+        assert bool(batch["terminated"][b]) == any(t for t, _ in ended)
+        assert bool(batch["truncated"][b]) == any(t for _, t in ended)
+    assert batch["terminated"].any() and batch["truncated"].any()
 
 
 def test_epsilon_schedule():

@@ -1,0 +1,77 @@
+"""Speed figures of the DDQN agent, for ``vacc bench`` and the training notes.
+
+* decision latency: a received 200x200 gray frame to the chosen action
+  (preprocessing, stacking, forward pass at batch 1, one CPU thread);
+* training steps/s against a real simulator server over UDP, learning on;
+* replay memory bytes per transition.
+
+    python -m agent_client.ddqn_bench [--quick]
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from agent_client.ddqn import Config, DDQNController, QNetwork, ReplayMemory, train
+from agent_client.preprocess import FRAME_H, FRAME_W
+
+__all__ = ["decision_latency", "training_rate", "replay_bytes_per_transition", "run"]
+
+
+def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str, float]:
+    """Median and p90 [s] from a received frame to the chosen action, one CPU thread."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        ctl = DDQNController((q if q is not None else QNetwork()).cpu(), Config())
+        image = np.random.default_rng(0).integers(0, 256, (200, 200), dtype=np.uint8)
+        obs = {"image": image.tobytes(), "image_shape": [200, 200, 1], "v_host": 30.0}
+        times = []
+        for i in range(repeats + 20):
+            t0 = time.perf_counter()
+            ctl(obs)
+            if i >= 20:  # warm-up
+                times.append(time.perf_counter() - t0)
+        return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
+    finally:
+        torch.set_num_threads(threads)
+
+
+def training_rate(steps: int = 2000, learning_starts: int = 500) -> dict[str, float]:
+    """Training steps/s (act + env step over UDP + a gradient step every 8) with a real server."""
+    cfg = Config(
+        total_steps=steps, learning_starts=learning_starts, train_every=8, buffer_size=max(steps, 1000),
+        eval_trajectories=(), checkpoint_every=10**9, episode_seconds=60.0,
+    )  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        summary = train(cfg, tmp, progress=False)
+        wall = time.perf_counter() - t0
+    learning = steps - learning_starts
+    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "learning_steps": learning, "train_every": 8, "summary_wall_s": summary["wall_s"]}
+
+
+def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:
+    """Bytes per stored transition, beside one 105x150 uint8 frame."""
+    memory = ReplayMemory(capacity)
+    return {"bytes_per_transition": memory.nbytes / capacity, "frame_bytes": float(FRAME_H * FRAME_W)}
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    """All three figures."""
+    return {
+        "decision_latency": decision_latency(repeats=100 if quick else 500),
+        "replay": replay_bytes_per_transition(),
+        "training": training_rate(steps=600 if quick else 3000, learning_starts=100 if quick else 1000),
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(quick="--quick" in sys.argv[1:]), indent=2))
