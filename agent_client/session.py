@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,8 +24,9 @@ import numpy as np
 
 from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
 from protocol import messages as m
+from protocol.codec import encode
 from protocol.faults import FaultConfig
-from protocol.fragment import DEFAULT_DATAGRAM
+from protocol.fragment import DEFAULT_DATAGRAM, fragment
 from protocol.transport import Endpoint
 
 __all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
@@ -93,6 +95,9 @@ class Session:
         self._backoff = 0.0  # [s] re-send timeout kept from a request that needed re-sends
         self._closed = False
         self._heartbeat_seq = 0
+        self._last_send = time.monotonic()  # [s] when a request last went out
+        self._stop = threading.Event()
+        self._keepalive: threading.Thread | None = None
 
     # -- lifecycle ------------------------------------------------------------
 
@@ -140,13 +145,32 @@ class Session:
             time.sleep(0.1)
         self.welcome = welcome
         self.token = welcome["session"]
+        self._keepalive = threading.Thread(target=self._keep_alive, name="vacc-keepalive", daemon=True)
+        self._keepalive.start()
         return welcome
+
+    def _keep_alive(self) -> None:
+        # A client busy elsewhere (evaluating, saving a checkpoint) must not lose its
+        # session: while no request goes out, send a heartbeat every quarter of the
+        # server's timeout. Its echo (seq 0) is ignored as a stale reply.
+        assert self.welcome is not None and self.token is not None
+        period = max(0.05, float(self.welcome["session_timeout"]) / 4)
+        datagram = fragment(encode({"type": "heartbeat", "session": self.token, "seq": 0}), 0)[0]
+        while not self._stop.wait(period):
+            if time.monotonic() - self._last_send >= period:
+                try:
+                    self.endpoint.sock.sendto(datagram, self.server)
+                except OSError:
+                    return  # the socket is closed
 
     def close(self) -> None:
         """Tell the server goodbye (best effort) and release the socket; safe twice."""
         if self._closed:
             return
         self._closed = True
+        self._stop.set()
+        if self._keepalive is not None:
+            self._keepalive.join()
         try:
             if self.token is not None:
                 msg = {"type": "close", "session": self.token}
@@ -254,7 +278,7 @@ class Session:
         endpoint, server = self.endpoint, self.server
         datagrams = endpoint.pack(msg)
         endpoint.send_datagrams(datagrams, server)
-        now = time.monotonic()
+        now = self._last_send = time.monotonic()
         deadline = deadline if deadline is not None else now + self.give_up
         sent_at = now
         # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
@@ -294,6 +318,7 @@ class Session:
                 )
             if now >= resend_at:
                 endpoint.send_datagrams(datagrams, server)
+                self._last_send = now
                 self.resends += 1
                 resent = True
                 wait = min(wait * 2, self.retry_max)

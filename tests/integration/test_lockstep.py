@@ -201,3 +201,11 @@ def test_full_rgb_images_survive_fragmentation_and_loss():
     for a, b in zip(clean, lossy, strict=True):
         np.testing.assert_array_equal(a, b)
     assert not np.array_equal(clean[0], clean[-1])
+
+
+def test_idle_client_keeps_its_session_alive():
+    with local_server("--session-timeout", "0.4") as addr:
+        with Session(addr) as s:
+            s.reset(seed=0)
+            time.sleep(1.5)  # busy elsewhere for almost 4 session timeouts
+            assert s.step(0.0)["frame"] == 1
