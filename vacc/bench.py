@@ -206,6 +206,47 @@ def render_new_seed(seeds: int, size: tuple[int, int] = (400, 400), frames: int 
             "frames": frames, "total_ms": {k: v * 1e3 for k, v in _summary(total).items()}}
 
 
+def _tree_rss(pid: int) -> dict[int, int]:
+    """RSS [bytes] of a process and all its descendants, from /proc."""
+    out: dict[int, int] = {}
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            for line in Path(f"/proc/{p}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    out[p] = int(line.split()[1]) * 1024
+            for task in Path(f"/proc/{p}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def training_peak_rss(steps: int) -> dict[str, Any]:
+    """Peak RSS of the trainer and of its simulator server during a `vacc train` run."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [
+            sys.executable, "-m", "vacc", "train", "--reward", "gap", "--steps", str(steps), "--out", tmp,
+            "--learning-starts", str(min(5000, steps // 4)), "--eval-every", "0", "--eval-trajectories", "test-1",
+            "--eval-seconds", "5", "--checkpoint-every", str(max(1000, steps // 5)), "--quiet",
+        ]  # fmt: skip
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        peak_trainer = peak_servers = 0
+        t0 = time.perf_counter()
+        while proc.poll() is None:
+            rss = _tree_rss(proc.pid)
+            peak_trainer = max(peak_trainer, rss.pop(proc.pid, 0))
+            peak_servers = max(peak_servers, max(rss.values(), default=0))
+            time.sleep(0.2)
+        wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        return {"error": f"vacc train exited {proc.returncode}"}
+    return {"steps": steps, "wall_s": wall, "trainer_peak_rss_mb": peak_trainer / 1e6, "server_peak_rss_mb": peak_servers / 1e6}
+
+
 def _versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in ("numpy", "torch", "opencv-python-headless", "pymunk", "msgpack", "gymnasium"):
@@ -229,7 +270,7 @@ def _cpu() -> str:
 def run_bench(quick: bool) -> dict[str, Any]:
     steps, reps = (500, 3) if quick else (3000, 5)
     rows: dict[str, Any] = {}
-    with click.progressbar(length=7, label="bench", file=sys.stderr) as bar:
+    with click.progressbar(length=11, label="bench", file=sys.stderr) as bar:
         rows["udp_echo"] = udp_echo(steps, reps)
         bar.update(1)
         rows["lockstep_no_image"] = lockstep(steps, reps)
@@ -246,6 +287,25 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["highway_env_peer"] = highway_peer(max(50, steps // 20), reps)
         bar.update(1)
+        from agent_client import ddqn_bench
+        from vacc import bench_sb3
+
+        lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)
+        rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}}
+        bar.update(1)
+        train_steps, starts = (600, 200) if quick else (6000, 1000)
+        rows["ddqn_training"] = ddqn_bench.training_rate(train_steps, starts)
+        bar.update(1)
+        rows["sb3_dqn_peer"] = bench_sb3.sb3_training_rate(train_steps, starts)
+        bar.update(1)
+        rows["replay"] = ddqn_bench.replay_bytes_per_transition()
+        rows["sb3_replay_peer"] = bench_sb3.sb3_replay_bytes()
+        rows["training_peak_rss"] = training_peak_rss(1500 if quick else 50_000)
+        bar.update(1)
+    if "error" not in rows["sb3_dqn_peer"]:
+        rows["ddqn_training"]["x_sb3"] = rows["ddqn_training"]["steps_per_s_overall"] / rows["sb3_dqn_peer"]["steps_per_s_overall"]
+    if "error" not in rows["sb3_replay_peer"]:
+        rows["replay"]["fraction_of_sb3"] = rows["replay"]["bytes_per_transition"] / rows["sb3_replay_peer"]["bytes_per_transition"]
     if "error" not in rows["highway_env_peer"]:
         peer = rows["highway_env_peer"]["steps_per_s"]["median"]
         rows["agent_env"]["x_highway_env"] = rows["agent_env"]["steps_per_s"]["median"] / peer
@@ -292,6 +352,23 @@ def format_table(result: dict[str, Any]) -> str:
     else:
         r = peer["steps_per_s"]
         lines.append(f"{'highway-env highway-v0 (peer)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  8x150x105 gray, 50 Hz")
+    d = f["decision_latency"]["ms"]
+    lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 1 ms (paper 3.58 ms GPU)")
+    t = f["ddqn_training"]
+    x = t.get("x_sb3")
+    lines.append(f"{'DDQN training (UDP, learning)':34} {t['steps_per_s_overall']:>9.1f} /s {'':>22}  >= 1.5x SB3" + (f" ({x:.2f}x)" if x else ""))
+    peer = f["sb3_dqn_peer"]
+    lines.append(f"{'SB3 DQN, same net and env (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['steps_per_s_overall']:>9.1f} /s"))
+    r = f["replay"]
+    frac = r.get("fraction_of_sb3")
+    lines.append(f"{'replay bytes per transition':34} {r['bytes_per_transition']:>9.0f} B  {'':>21}  <= 1/5 of SB3" + (f" (1/{1 / frac:.1f})" if frac else ""))
+    peer = f["sb3_replay_peer"]
+    lines.append(f"{'SB3 DictReplayBuffer (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['bytes_per_transition']:>9.0f} B"))
+    m = f["training_peak_rss"]
+    if "error" in m:
+        lines.append(f"{'peak RSS during training':34} {m['error']}")
+    else:
+        lines.append(f"{'peak RSS, ' + str(m['steps']) + '-step training':34} trainer {m['trainer_peak_rss_mb']:.0f} MB, server {m['server_peak_rss_mb']:.0f} MB")
     r = f["render_rgb400"]["ms"]
     lines.append(f"{'render 400x400 RGB':34} {r['median']:>9.3f} ms {'p99 ' + format(r['p99'], '.3f'):>22}  <= 0.5 ms (max 1 ms)")
     r = f["render_gray200"]["ms"]

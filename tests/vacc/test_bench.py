@@ -25,13 +25,16 @@ def test_quick_bench_reports_every_figure(tmp_path):
     data = json.loads(out.read_text())
     assert {"date", "cpu", "cores", "versions"} <= set(data["header"])
     figures = data["figures"]
-    for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "render_rgb400", "agent_env"):
+    for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "render_rgb400", "agent_env", "decision_latency", "ddqn_training", "replay", "training_peak_rss"):
         assert key in figures, key
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
-    peer = figures["highway_env_peer"]
-    assert "steps_per_s" in peer or "vacc[bench]" in peer["error"]
+    for name in ("highway_env_peer", "sb3_dqn_peer", "sb3_replay_peer"):
+        peer = figures[name]
+        assert "error" not in peer or "vacc[bench]" in peer["error"], name
+    assert "error" not in figures["training_peak_rss"]
+    assert figures["replay"]["bytes_per_transition"] < 1.1 * (105 * 150 + 64)
     values = dict(_positive_numbers(figures))
     assert len(values) > 20
     for path, value in values.items():

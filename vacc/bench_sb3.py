@@ -1,0 +1,83 @@
+"""Stable-Baselines3 peers for `vacc bench`: DQN training steps/s and replay bytes.
+
+SB3's DQN runs on our own Gymnasium env (the real UDP path), with a features
+extractor of exactly our network's size, so the two learners differ only in their
+training loops and replay memories.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+INSTALL_HINT = "stable-baselines3 is not installed: pip install 'vacc[bench]' (make bench does)"
+
+
+def _extractor_class() -> Any:
+    import torch
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+    from agent_client.ddqn import QNetwork
+
+    class VaccExtractor(BaseFeaturesExtractor):
+        """Our QNetwork minus its last layer; SB3 adds the 256 -> 21 head."""
+
+        def __init__(self, observation_space: Any, frame_stack: int = 8):
+            super().__init__(observation_space, features_dim=256)
+            q = QNetwork(frame_stack)
+            self.conv, self.fc = q.conv, q.fc[:2]
+            self.speed_scale = q.speed_scale
+
+        def forward(self, obs: dict[str, Any]) -> Any:
+            # SB3 has already scaled the uint8 frames to [0, 1].
+            x = self.conv(obs["frames"])
+            return self.fc(torch.cat([x, obs["speeds"] / self.speed_scale], dim=1))
+
+    return VaccExtractor
+
+
+def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8) -> dict[str, Any]:
+    """SB3 DQN (MultiInputPolicy, our net size) training steps/s against a real server."""
+    try:
+        import torch
+        from stable_baselines3 import DQN
+    except ImportError:
+        return {"error": INSTALL_HINT}
+    from agent_client.env import VisionACCEnv
+
+    torch.set_num_threads(1)
+    env = VisionACCEnv(trajectory="random", stack_stride=2, episode_seconds=60.0)
+    try:
+        model = DQN(
+            "MultiInputPolicy", env, buffer_size=max(steps, 1000), learning_starts=learning_starts,
+            batch_size=32, train_freq=train_every, gradient_steps=1, target_update_interval=2000,
+            policy_kwargs={"features_extractor_class": _extractor_class(), "net_arch": []},
+            seed=1, device="cpu", verbose=0,
+        )  # fmt: skip
+        t0 = time.perf_counter()
+        model.learn(total_timesteps=steps)
+        wall = time.perf_counter() - t0
+    finally:
+        env.close()
+    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "train_every": train_every}
+
+
+def sb3_replay_bytes(capacity: int = 1000) -> dict[str, Any]:
+    """Bytes per transition of SB3's buffer for our observation (it stores obs and next obs)."""
+    try:
+        from stable_baselines3.common.buffers import DictReplayBuffer
+    except ImportError:
+        return {"error": INSTALL_HINT}
+    from gymnasium import spaces
+
+    from agent_client.env import MAX_SPEED
+    from agent_client.preprocess import FRAME_H, FRAME_W
+
+    obs_space = spaces.Dict(
+        {"frames": spaces.Box(0, 255, (8, FRAME_H, FRAME_W), np.uint8), "speeds": spaces.Box(0.0, MAX_SPEED, (8,), np.float32)}
+    )
+    buf = DictReplayBuffer(capacity, obs_space, spaces.Discrete(21), device="cpu")
+    arrays = [*buf.observations.values(), *buf.next_observations.values(), buf.actions, buf.rewards, buf.dones, buf.timeouts]
+    return {"bytes_per_transition": sum(a.nbytes for a in arrays) / capacity}
