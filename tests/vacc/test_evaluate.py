@@ -65,3 +65,17 @@ def test_bad_methods_and_human_files(tmp_path):
     assert result.returncode != 0 and "robot" in result.stderr
     result = vacc("evaluate", "--out", str(tmp_path / "o"), "--human-file", "test-9=x.csv")
     assert result.returncode != 0 and "TRAJ=PATH" in result.stderr
+
+
+def test_ddqn_methods_drive_from_the_models_folder(tmp_path):
+    from agent_client.ddqn import Config, QNetwork, save_policy
+
+    models = tmp_path / "models"
+    models.mkdir()
+    save_policy(QNetwork(), Config(), models / "ice-gap.pt")
+    out = tmp_path / "out"
+    result = vacc("evaluate", "--out", str(out), "--models", str(models), "--methods", "ddqn-gap", "--duration", "2", "--jobs", "2")
+    assert result.returncode == 0, result.stderr
+    rows = list(csv.reader((out / "logs" / "ddqn-gap-test-2.csv").open()))
+    assert len(rows) == 1 + 21
+    assert "Gap-based DDQN" in (out / "table.md").read_text()
