@@ -69,6 +69,7 @@ FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of action a: -1 + 0
 CHECKPOINT_FORMAT = "vacc-ddqn"
 CHECKPOINT_VERSION = 1
 DESIRED_GAP = 55.0  # [m] the paper's gap target for RMSE
+SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
 
 
 # --------------------------------------------------------------------------- config
@@ -132,6 +133,9 @@ class Config:
     """[s] evaluation episode length (None: the whole 240 s test trajectory)."""
     checkpoint_every: int = 10_000
     """Steps between full checkpoints (taken at the next episode end)."""
+    init_from: str | None = None
+    """A policy checkpoint whose weights start the run (fine-tuning, e.g. force from gap);
+    None: random initial weights."""
     torch_threads: int = 1
     """CPU threads for torch (the machine is shared)."""
     cuda: bool = True
@@ -763,6 +767,10 @@ def train(
     """
     from agent_client.env import VisionACCEnv  # the env spawns servers; import late
 
+    # The training session sits idle through evaluations and replay saves; keep the
+    # spawned servers from freeing it (their default is 10 s of silence).
+    server_args = ("--session-timeout", str(SESSION_TIMEOUT), *server_args)
+
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     latest, replay_path, best_path = run_dir / "latest.pt", run_dir / "replay.npz", run_dir / "best.pt"
@@ -782,6 +790,12 @@ def train(
     memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride)
     state = _State()
 
+    if cfg.init_from is not None and not resume:
+        init_q, init_cfg = load_policy(cfg.init_from)
+        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale):
+            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride or speed scale")
+        q.load_state_dict(init_q.state_dict())
+        target.load_state_dict(init_q.state_dict())
     if resume:
         ckpt = _read_checkpoint(latest)
         if ckpt.get("kind") != "training":

@@ -47,6 +47,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--stack-stride", default=_D.stack_stride, show_default=True, type=click.IntRange(min=1), help="Control steps between stacked frames.")
 @click.option("--checkpoint-every", default=_D.checkpoint_every, show_default=True, type=click.IntRange(min=1))
 @click.option("--log-every", default=_D.log_every, show_default=True, type=click.IntRange(min=1), help="Steps between loss/Q-value scalars.")
+@click.option("--init-from", default=None, type=click.Path(dir_okay=False, exists=True), help="Start from this policy checkpoint's weights (fine-tuning).")
 @click.option("--threads", default=_D.torch_threads, show_default=True, type=click.IntRange(min=1), help="torch CPU threads.")
 @click.option("--no-cuda", is_flag=True, help="Stay on the CPU even if CUDA is available.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
@@ -74,6 +75,7 @@ def train(
     stack_stride: int,
     checkpoint_every: int,
     log_every: int,
+    init_from: str | None,
     threads: int,
     no_cuda: bool,
     quiet: bool,
@@ -93,7 +95,7 @@ def train(
         buffer_size=buffer_size, learning_starts=learning_starts, exploration_steps=exploration_steps,
         end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
         target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride,
-        checkpoint_every=checkpoint_every, log_every=log_every, torch_threads=threads, cuda=not no_cuda,
+        checkpoint_every=checkpoint_every, log_every=log_every, init_from=init_from, torch_threads=threads, cuda=not no_cuda,
     )  # fmt: skip
     if resume and not (Path(out) / "latest.pt").exists():
         raise click.UsageError(f"--resume: {Path(out) / 'latest.pt'} does not exist")

@@ -112,3 +112,11 @@ def test_drive_ddqn_bad_checkpoint_is_a_clear_error(tmp_path):
     assert "broken.pt" in result.output and "Traceback" not in result.output
     result = runner.invoke(main, ["drive", "--controller", "ddqn", "--log", str(tmp_path / "x.csv")])
     assert result.exit_code == 2 and "--checkpoint" in result.output
+
+
+def test_init_from_must_match_the_stack(trained_run, tmp_path):
+    from agent_client.errors import InputFileError
+
+    out, _ = trained_run
+    with pytest.raises(InputFileError, match="best.pt.*stride"):
+        train(Config(**{**TINY.__dict__, "stack_stride": 3, "init_from": str(out / "best.pt")}), tmp_path / "ft", progress=False)
