@@ -17,7 +17,9 @@ Run folder ``runs/<name>/``:
   ``charts/``, ``losses/``, ``eval/`` (TensorBoard events too if installed);
 * ``latest.pt``: the full training state (weights, target, optimizer, step, RNG
   states), written at episode ends so that a resumed run continues exactly;
-* ``replay.npz``: the replay memory that goes with ``latest.pt``;
+* ``replay-<step>.npz``: the replay memory that goes with ``latest.pt`` (which
+  names it); the previous one is deleted only after ``latest.pt`` is replaced, so a
+  kill at any moment leaves a resumable pair;
 * ``best.pt``: policy-only checkpoint (< 5 MB) with the best evaluation so far.
 """
 
@@ -717,10 +719,11 @@ class _State:
     recent_returns: list[float] = field(default_factory=list)
 
 
-def _save_training(path: Path, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, cfg: Config, state: _State, rng: np.random.Generator) -> None:
+def _save_training(path: Path, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, cfg: Config, state: _State, rng: np.random.Generator, replay: str) -> None:
     _atomic_save(
         {
             "format": CHECKPOINT_FORMAT,
+            "replay": replay,
             "version": CHECKPOINT_VERSION,
             "kind": "training",
             "config": _config_dict(cfg),
@@ -754,7 +757,7 @@ def train(
         cfg: the settings (with ``resume``, those of the run being resumed must match
             in everything but ``total_steps``).
         run_dir: ``runs/<name>``.
-        resume: continue from ``run_dir/latest.pt`` and ``run_dir/replay.npz``.
+        resume: continue from ``run_dir/latest.pt`` and the replay file it names.
         progress: show the progress line on stderr.
         server_args: extra ``python -m sim_server`` arguments for the spawned servers.
         on_eval: called with (step, results) after each evaluation.
@@ -773,7 +776,7 @@ def train(
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    latest, replay_path, best_path = run_dir / "latest.pt", run_dir / "replay.npz", run_dir / "best.pt"
+    latest, best_path = run_dir / "latest.pt", run_dir / "best.pt"
 
     # --- seeding: the one block. Everything random below draws from these. -------
     random.seed(cfg.seed)
@@ -814,6 +817,7 @@ def train(
             random.setstate((ckpt["rng"]["python_version"], tuple(ckpt["rng"]["python"]), None))
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise InputFileError(f"{latest}: incomplete training state ({type(exc).__name__}: {exc})") from None
+        replay_path = run_dir / str(ckpt.get("replay", "replay.npz"))
         replay_step = memory.load(replay_path)
         if replay_step != state.global_step:
             raise InputFileError(f"{replay_path}: saved at step {replay_step}, but {latest} is at step {state.global_step}")
@@ -924,8 +928,14 @@ def train(
                     next_eval += cfg.eval_every
             if state.global_step >= next_checkpoint or finished:
                 state.recent_returns = list(recent)
-                memory.save(replay_path, state.global_step)  # replay first: latest.pt points at it
-                _save_training(latest, q, target, optimizer, cfg, state, np_rng)
+                # Replay first, under a new name; then latest.pt, which names it; only
+                # then the old replay goes. A kill -9 anywhere leaves a resumable pair.
+                replay_name = f"replay-{state.global_step}.npz"
+                memory.save(run_dir / replay_name, state.global_step)
+                _save_training(latest, q, target, optimizer, cfg, state, np_rng, replay_name)
+                for old in [*run_dir.glob("replay-*.npz"), run_dir / "replay.npz"]:
+                    if old.name != replay_name and old.exists():
+                        old.unlink()
                 log.flush()
                 next_checkpoint = state.global_step + cfg.checkpoint_every
         bar.update(state.global_step, 0.0, linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step),

@@ -28,7 +28,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--steps", required=True, type=click.IntRange(min=1), help="Environment steps (0.1 s each) to train for, in total.")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
-@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and replay.npz.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
 @click.option("--seed", default=_D.seed, show_default=True, type=int)
 @click.option("--eval-every", default=_D.eval_every, show_default=True, type=click.IntRange(min=0), help="Steps between evaluations on test-1..4 (0: only at the end).")
 @click.option("--eval-seconds", default=None, type=float, callback=_seconds, help="Evaluation episode length [s] (default: whole trajectories).")
@@ -82,7 +82,7 @@ def train(
 ) -> None:
     """Train a Double-DQN policy from camera frames against spawned simulator servers.
 
-    Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay.npz) and
+    Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay-STEP.npz) and
     OUT/best.pt (the policy with the best test evaluation; drive it with
     `vacc drive --controller ddqn --checkpoint OUT/best.pt`).
     """

@@ -52,8 +52,9 @@ def test_resume_refuses_other_settings_and_missing_files(tmp_path):
     train(Config(**{**TINY.__dict__, "total_steps": 30}), tmp_path / "run", progress=False)
     with pytest.raises(InputFileError, match="other settings.*gamma"):
         train(Config(**{**TINY.__dict__, "gamma": 0.9}), tmp_path / "run", resume=True, progress=False)
-    (tmp_path / "run" / "replay.npz").unlink()
-    with pytest.raises(InputFileError, match="replay.npz"):
+    [replay] = (tmp_path / "run").glob("replay-*.npz")
+    replay.unlink()
+    with pytest.raises(InputFileError, match="replay-30.npz"):
         train(TINY, tmp_path / "run", resume=True, progress=False)
 
 
@@ -74,8 +75,9 @@ def trained_run(tmp_path_factory):
 def test_train_cli_writes_the_run_folder(trained_run):
     out, output = trained_run
     assert "trained 200 steps" in output and "test-1: gap RMSE" in output
-    for name in ("config.json", "scalars.csv", "latest.pt", "replay.npz", "best.pt", "summary.json"):
+    for name in ("config.json", "scalars.csv", "latest.pt", "best.pt", "summary.json"):
         assert (out / name).is_file(), name
+    assert [p.name for p in out.glob("replay-*.npz")] == ["replay-200.npz"]
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["reward"] == "force" and cfg["total_steps"] == 200 and cfg["seed"] == 3
     names = {r["name"] for r in csv.DictReader(open(out / "scalars.csv"))}
