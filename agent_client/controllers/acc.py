@@ -7,6 +7,17 @@ beta and gamma are the published gains of this law (SUMO's ACC model after Milan
 Shladover). t_gap = 1.8 s puts d_ref at 54 m at the ICE lead's mean 30 m/s, next to
 the paper's 55 m target; d_safe = 5 m keeps a standstill distance in stop-and-go.
 Unlike the DDQN agent, this controller is given the gap: it stands for a radar ACC.
+
+The linear law alone brakes too gently when a lead stops in traffic: on the EV
+test windows it touched the lead in all four runs. Like production ACCs (and SUMO's
+collision-avoidance mode), a kinematic limit caps the command while closing in:
+
+    a <= min(a_lead, 0) - (v_host - v_lead)^2 / (2 (gap - d_min))
+
+the constant deceleration that matches the lead's speed d_min before it. It engages
+only when the time to reach d_min at the current closing speed is under
+``ttc_engage`` (6 s), so ordinary following, and all of the ICE runs, follow
+eq. 1-3 alone.
 """
 
 from __future__ import annotations
@@ -34,6 +45,8 @@ class AccController:
     gamma: float = 0.07  # [1/s] speed-difference gain
     t_gap: float = 1.8  # [s] desired time gap
     d_safe: float = 5.0  # [m] minimum desired gap
+    d_min: float = 2.0  # [m] closest approach the collision-avoidance limit aims for
+    ttc_engage: float = 6.0  # [s] the limit engages below this time to reach d_min
 
     name = "acc"
 
@@ -45,6 +58,11 @@ class AccController:
         """Nothing to forget between episodes."""
 
     def __call__(self, obs: dict[str, Any]) -> float:
-        """The force u for an observation with ``gap``, ``v_host`` and ``v_lead``."""
-        a_ref = self.beta * (obs["gap"] - self.reference_gap(obs["v_host"])) + self.gamma * (obs["v_lead"] - obs["v_host"])
+        """The force u for an observation with ``gap``, ``v_host``, ``v_lead`` and ``a_lead``."""
+        gap, v, v_lead = obs["gap"], obs["v_host"], obs["v_lead"]
+        a_ref = self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_lead - v)
+        closing = v - v_lead  # [m/s]
+        if closing > 0.0 and gap - self.d_min < self.ttc_engage * closing:
+            a_safe = min(obs.get("a_lead", 0.0), 0.0) - closing**2 / (2.0 * max(gap - self.d_min, 0.1))
+            a_ref = min(a_ref, a_safe)
         return force_of_accel(a_ref)

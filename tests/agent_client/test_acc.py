@@ -1,0 +1,40 @@
+from __future__ import annotations
+
+import pytest
+
+from agent_client.controllers.acc import AccController, force_of_accel
+from agent_client.drive import drive_episode
+from agent_client.launcher import local_server
+from agent_client.session import Session
+
+
+def test_force_of_accel_inverts_the_force_map():
+    assert force_of_accel(3.5) == 1.0 and force_of_accel(-5.5) == -1.0
+    assert force_of_accel(1.75) == pytest.approx(0.5) and force_of_accel(-2.75) == pytest.approx(-0.5)
+    assert force_of_accel(99.0) == 1.0 and force_of_accel(-99.0) == -1.0
+
+
+def test_eq_1_to_3_while_following():
+    acc = AccController()
+    obs = {"gap": 60.0, "v_host": 30.0, "v_lead": 31.0, "a_lead": -1.0}
+    a_ref = 0.23 * (60.0 - 1.8 * 30.0) + 0.07 * 1.0  # eq. 1 with d_ref = v t_gap (eq. 2)
+    assert acc(obs) == pytest.approx(a_ref / 3.5)
+    assert acc.reference_gap(1.0) == 5.0  # d_safe at low speed (eq. 3)
+
+
+def test_collision_avoidance_limit_engages_only_when_closing_fast():
+    acc = AccController()
+    calm = {"gap": 50.0, "v_host": 31.0, "v_lead": 30.0, "a_lead": -2.0}  # 48 s to reach d_min
+    assert acc(calm) == pytest.approx(force_of_accel(0.23 * (50 - 1.8 * 31) + 0.07 * -1.0))
+    urgent = {"gap": 12.0, "v_host": 9.0, "v_lead": 6.0, "a_lead": -1.5}  # 3.3 s
+    a_safe = -1.5 - 3.0**2 / (2 * (12.0 - 2.0))
+    assert acc(urgent) == pytest.approx(force_of_accel(a_safe))
+
+
+@pytest.mark.parametrize("scenario", ["ice", "ev"])
+def test_no_collision_on_the_test_trajectories(scenario):
+    with local_server() as addr, Session(addr) as s:
+        for traj in ("test-1", "test-2", "test-3", "test-4"):
+            summary = drive_episode(s, AccController(), scenario=scenario, seed=0, trajectory=traj)
+            assert not summary.collision, traj
+            assert summary.reason == "end" and summary.sim_time == pytest.approx(240.0)
