@@ -856,8 +856,11 @@ def train(
         log.add("eval/gap_rmse_m", max(rmse), state.global_step)
         log.add("eval/gap_rmse_mean_m", float(np.mean(rmse)), state.global_step)
         log.add("eval/collisions", collisions, state.global_step)
-        # Best = fewest collisions, then the worst trajectory's RMSE (the target is per trajectory).
-        score = 1e6 * collisions + max(rmse)
+        # Best = fewest failures (a collision, or losing the lead past 300 m), then the
+        # worst trajectory's RMSE (the target is per trajectory).
+        failures = sum(r["collision"] or r["reason"] not in ("end", "") for r in last_eval)
+        log.add("eval/failures", failures, state.global_step)
+        score = 1e6 * failures + max(rmse)
         if score < state.best_score:
             state.best_score = score
             save_policy(q, cfg, best_path, {"step": state.global_step, "eval": last_eval})

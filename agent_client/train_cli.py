@@ -37,6 +37,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--buffer-size", default=_D.buffer_size, show_default=True, type=click.IntRange(min=100))
 @click.option("--learning-starts", default=_D.learning_starts, show_default=True, type=click.IntRange(min=0))
 @click.option("--exploration-steps", default=_D.exploration_steps, show_default=True, type=click.IntRange(min=1))
+@click.option("--start-e", default=_D.start_e, show_default=True, type=click.FloatRange(0.0, 1.0))
 @click.option("--end-e", default=_D.end_e, show_default=True, type=click.FloatRange(0.0, 1.0))
 @click.option("--learning-rate", default=_D.learning_rate, show_default=True, type=click.FloatRange(min=0.0, min_open=True))
 @click.option("--batch-size", default=_D.batch_size, show_default=True, type=click.IntRange(min=1))
@@ -65,6 +66,7 @@ def train(
     buffer_size: int,
     learning_starts: int,
     exploration_steps: int,
+    start_e: float,
     end_e: float,
     learning_rate: float,
     batch_size: int,
@@ -93,7 +95,7 @@ def train(
         reward=reward, scenario=scenario, total_steps=steps, seed=seed, eval_every=eval_every,
         eval_seconds=eval_seconds, eval_trajectories=trajectories, episode_seconds=episode_seconds,
         buffer_size=buffer_size, learning_starts=learning_starts, exploration_steps=exploration_steps,
-        end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
+        start_e=start_e, end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
         target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride,
         checkpoint_every=checkpoint_every, log_every=log_every, init_from=init_from, torch_threads=threads, cuda=not no_cuda,
     )  # fmt: skip
