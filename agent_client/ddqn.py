@@ -171,7 +171,7 @@ class QNetwork(nn.Module):
     conv 5x5/4 (16) -> conv 4x4/2 (32) -> conv 3x3/2 (64) -> 2560 features
     [2560 features, 8 speeds / speed_scale] -> fc 256 -> fc 21
 
-    About 691 k parameters (2.8 MB as float32). The first layer is a 5x5 kernel at
+    About 693 k parameters (2.8 MB as float32). The first layer is a 5x5 kernel at
     stride 4 rather than Atari's 8x8: on one CPU thread it cut a batch-32 update
     from about 80 ms to 58 ms and the batch-1 forward by about 15 %.
 
