@@ -228,7 +228,8 @@ def plot_runs(out: Path, methods: list[str], labels: dict[str, str], traj: str =
 
 
 def plot_training(out: Path, models: Path, scenario: str) -> None:
-    """fig_training.png from the shipped models' training curves (``<model>.curve.csv``: step,avg_reward)."""
+    """fig_training.png from the shipped models' training curves (``<model>.curve.csv``: step,avg_reward;
+    ``#`` lines are comments)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -239,8 +240,13 @@ def plot_training(out: Path, models: Path, scenario: str) -> None:
     for reward in ("gap", "force"):
         curve = models / f"{scenario}-{reward}.curve.csv"
         if curve.exists():
-            d = np.genfromtxt(curve, delimiter=",", names=True)
-            ax.plot(d["step"], d["avg_reward"], label=f"{reward}-based DDQN")
+            rows = [r for r in csv.DictReader(line for line in curve.open() if not line.startswith("#"))]
+            try:
+                steps = [int(r["step"]) for r in rows]
+                values = [float(r["avg_reward"]) for r in rows]
+            except (KeyError, TypeError, ValueError):
+                raise click.ClickException(f"{curve}: expected columns step,avg_reward") from None
+            ax.plot(steps, values, label=f"{reward}-based DDQN")
             found = True
     if not found:
         ax.text(0.5, 0.5, f"no training curves shipped in {models}", ha="center", va="center", transform=ax.transAxes)
