@@ -24,7 +24,8 @@ START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
 
 
 def _start(args: list[str], timeout: float, stderr: int | None = None) -> tuple[subprocess.Popen[str], tuple[str, int]]:
-    cmd = [sys.executable, "-m", "sim_server", "--port", "0", *args]
+    # --parent-pid: the server exits by itself if we die without reaping it.
+    cmd = [sys.executable, "-m", "sim_server", "--port", "0", "--parent-pid", str(os.getpid()), *args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env)
     assert proc.stdout is not None

@@ -33,6 +33,7 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
 @click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")
 @click.option("--allow-remote", is_flag=True, help="Allow binding an address other than loopback.")
 @click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
+@click.option("--parent-pid", default=None, type=int, help="Exit when this process dies (set by launchers).")
 def serve(
     host: str,
     port: int,
@@ -44,6 +45,7 @@ def serve(
     max_datagram: int,
     allow_remote: bool,
     max_seconds: float | None,
+    parent_pid: int | None,
 ) -> None:
     """Run a simulator server: one world, lockstep over UDP.
 
@@ -63,6 +65,7 @@ def serve(
         world=WorldConfig(substeps=substeps),
         faults=faults,
         max_datagram=max_datagram,
+        parent_pid=parent_pid,
     )
     try:
         server = SimServer(config)

@@ -45,6 +45,7 @@ class ServerConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
     faults: FaultConfig | None = None  # inject faults on the server's sends
     max_datagram: int = DEFAULT_DATAGRAM  # [bytes] cap on what the server sends
+    parent_pid: int | None = None  # exit when this process is no longer our parent
 
 
 @dataclass
@@ -107,6 +108,10 @@ class SimServer:
             if deadline is not None and now >= deadline:
                 break
             self._expire(now)
+            if self.config.parent_pid is not None and os.getppid() != self.config.parent_pid:
+                # The client that spawned us died (even by kill -9): don't linger.
+                print("vacc-server: parent process gone, exiting", file=sys.stderr)
+                break
             got = self.endpoint.receive(0.5)
             if got is None or got.addr is None:
                 continue

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -209,3 +210,29 @@ def test_idle_client_keeps_its_session_alive():
             s.reset(seed=0)
             time.sleep(1.5)  # busy elsewhere for almost 4 session timeouts
             assert s.step(0.0)["frame"] == 1
+
+
+def test_spawned_server_exits_when_its_client_is_killed(tmp_path):
+    # A client process spawns a server, then dies by SIGKILL (no clean-up runs).
+    script = (
+        "import time\n"
+        "from agent_client.launcher import local_server\n"
+        "with local_server() as addr:\n"
+        "    print(addr[1], flush=True)\n"
+        "    time.sleep(60)\n"
+    )
+    client = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    port = int(client.stdout.readline())
+    client.kill()
+    client.wait()
+    client.stdout.close()
+    deadline = time.monotonic() + 10
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        while time.monotonic() < deadline:
+            try:
+                probe.bind(("127.0.0.1", port))  # free again: the orphaned server is gone
+                break
+            except OSError:
+                time.sleep(0.2)
+        else:
+            pytest.fail(f"orphaned server still holds port {port}")
