@@ -17,13 +17,20 @@ from collections.abc import Iterator
 
 from agent_client.errors import ServerLaunchError
 
-__all__ = ["local_server", "READY_PREFIX", "START_TIMEOUT"]
+__all__ = ["local_server", "start_server", "reap", "READY_PREFIX", "START_TIMEOUT"]
 
 READY_PREFIX = "vacc-server listening on "
 START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
 
 
-def _start(args: list[str], timeout: float, stderr: int | None = None) -> tuple[subprocess.Popen[str], tuple[str, int]]:
+def start_server(args: list[str], timeout: float, stderr: int | None = None) -> tuple[subprocess.Popen[str], tuple[str, int]]:
+    """Start ``python -m sim_server --port 0 ARGS``; returns the process and its bound address.
+
+    The caller owns the process and must :func:`reap` it.
+
+    Raises:
+        ServerLaunchError: if it does not report its address within ``timeout`` [s].
+    """
     # --parent-pid: the server exits by itself if we die without reaping it.
     cmd = [sys.executable, "-m", "sim_server", "--port", "0", "--parent-pid", str(os.getpid()), *args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -41,11 +48,12 @@ def _start(args: list[str], timeout: float, stderr: int | None = None) -> tuple[
                 break
         elif proc.poll() is not None:
             break
-    _reap(proc)
+    reap(proc)
     raise ServerLaunchError(f"simulator server did not start (exit code {proc.returncode}): {' '.join(cmd)}")
 
 
-def _reap(proc: subprocess.Popen[str]) -> None:
+def reap(proc: subprocess.Popen[str]) -> None:
+    """Stop a server process (SIGTERM, then SIGKILL after 5 s) and close its pipe."""
     if proc.poll() is None:
         proc.terminate()
         try:
@@ -75,7 +83,7 @@ def local_server(
     last: ServerLaunchError | None = None
     for _ in range(retries + 1):
         try:
-            proc, addr = _start(list(args), timeout, stderr)
+            proc, addr = start_server(list(args), timeout, stderr)
             break
         except ServerLaunchError as exc:
             last = exc
@@ -85,4 +93,4 @@ def local_server(
     try:
         yield addr
     finally:
-        _reap(proc)
+        reap(proc)

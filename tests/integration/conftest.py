@@ -6,30 +6,17 @@ import sys
 
 import pytest
 
-from agent_client.launcher import READY_PREFIX, local_server
+from agent_client.launcher import START_TIMEOUT, local_server, reap, start_server
 
 
 @contextlib.contextmanager
 def spawn_server(*args: str, stderr_path=None):
     """A server process we can signal and measure: yields (proc, (host, port))."""
-    err = open(stderr_path, "w") if stderr_path else None  # noqa: SIM115 - closed below
-    proc = subprocess.Popen([sys.executable, "-m", "sim_server", *args], stdout=subprocess.PIPE, stderr=err, text=True)
-    try:
-        line = proc.stdout.readline()
-        assert line.startswith(READY_PREFIX), line
-        host, _, port = line[len(READY_PREFIX) :].strip().rpartition(":")
-        yield proc, (host, int(port))
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        proc.stdout.close()
-        if err is not None:
-            err.close()
+    with contextlib.ExitStack() as stack:
+        err = stack.enter_context(open(stderr_path, "w")) if stderr_path else None
+        proc, addr = start_server(list(args), START_TIMEOUT, err.fileno() if err else None)
+        stack.callback(reap, proc)
+        yield proc, addr
 
 
 def vacc(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess[str]:
