@@ -38,7 +38,6 @@ from protocol.faults import FaultConfig
 CONTROLLERS = ("acc", "hdm", "ddqn", "human-file", "keyboard")
 TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4", "random")
 LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
-DDQN_IMAGE = (200, 200)  # [px] gray camera size the ddqn controller asks for (the paper's x0.5)
 
 
 def parse_hostport(value: str) -> tuple[str, int]:
@@ -170,8 +169,10 @@ def drive(
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
     image_format = "rgb" if live else "none"
     image_size = LIVE_IMAGE
-    if controller == "ddqn":  # gray at the paper's x0.5: all the network's input needs
-        image_format, image_size = "gray", DDQN_IMAGE
+    if controller == "ddqn":  # gray, at the size the checkpoint's preprocessing needs
+        from agent_client.preprocess import camera_size
+
+        image_format, image_size = "gray", camera_size(policy.cfg.zoom)
     try:
         with (
             server_address(server, *server_args) as addr,

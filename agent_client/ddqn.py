@@ -46,7 +46,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from agent_client.errors import InputFileError
-from agent_client.preprocess import FRAME_H, FRAME_W, preprocess
+from agent_client.preprocess import FRAME_H, FRAME_W, ZOOMS, preprocess
 from agent_client.stacker import FrameStacker
 
 __all__ = [
@@ -125,6 +125,10 @@ class Config:
     """Control steps between stacked frames (2: the stack spans 1.4 s)."""
     speed_scale: float = 30.0
     """[m/s] host speeds are divided by this before the network."""
+    zoom: int = 1
+    """Camera window: 1, the paper's (200x200 gray, the 400x400 camera halved); 2, the
+    same 105x150 window around the horizon at full resolution (400x400 gray): the lead
+    at 55 m is twice as wide in pixels. Checkpoints record it."""
     episode_seconds: float | None = 60.0
     """[s] training episodes are truncated here (None: the trajectory's 240 s)."""
     eval_every: int = 25_000
@@ -157,6 +161,8 @@ class Config:
                 raise ValueError(f"{name} must be >= 1")
         if not 0.0 <= self.gamma < 1.0:
             raise ValueError("gamma must be in [0, 1)")
+        if self.zoom not in ZOOMS:
+            raise ValueError(f"zoom must be one of {ZOOMS}")
 
 
 # -------------------------------------------------------------------------- network
@@ -584,7 +590,7 @@ class DDQNController:
         image = Session.image(obs)
         if image is None:
             raise ValueError("the ddqn controller needs camera images; open the session with image_format='gray'")
-        stacked = self.stacker.push(preprocess(image), float(obs["v_host"]))
+        stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]))
         return float(FORCES[self.act(stacked)])
 
 
@@ -795,8 +801,8 @@ def train(
 
     if cfg.init_from is not None and not resume:
         init_q, init_cfg = load_policy(cfg.init_from)
-        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale):
-            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride or speed scale")
+        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
+            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
         q.load_state_dict(init_q.state_dict())
         target.load_state_dict(init_q.state_dict())
     if resume:
@@ -828,7 +834,7 @@ def train(
     recent = deque(state.recent_returns, maxlen=20)
     env = VisionACCEnv(
         scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
-        stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=server_args,
+        stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=server_args, zoom=cfg.zoom,
     )  # fmt: skip
     eval_env: VisionACCEnv | None = None
     last_eval: list[dict[str, Any]] = []
@@ -844,7 +850,7 @@ def train(
             eval_env = VisionACCEnv(
                 scenario=cfg.scenario, trajectory=cfg.eval_trajectories[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
-                episode_seconds=cfg.eval_seconds, server_args=server_args,
+                episode_seconds=cfg.eval_seconds, server_args=server_args, zoom=cfg.zoom,
             )  # fmt: skip
         q.eval()
         last_eval = evaluate(q, eval_env, cfg.eval_trajectories)

@@ -22,7 +22,6 @@ __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
 
 N_ACTIONS = 21
 FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of each action: -1.0, -0.9, ..., 1.0
-AGENT_IMAGE = (200, 200)  # [px] asked of the server: the paper's x0.5 of 400x400, rendered natively
 
 
 class VisionACCEnv(gym.Env):
@@ -56,6 +55,9 @@ class VisionACCEnv(gym.Env):
     ``server``: (host, port) of a running server, or None to spawn one (reaped on
     ``close``). ``scenario``: "ice" | "ev". ``trajectory``: "random" (a new one each
     episode) or "test-1".."test-4". ``frame_stack``, ``stack_stride``: the stack.
+    ``zoom``: 1, the paper's preprocessing (a 200x200 gray camera, the 400x400 one
+    halved); 2, the same 105x150 window at full resolution (a 400x400 gray camera;
+    :mod:`agent_client.preprocess`).
 
     ## Version history
     * v0: first version.
@@ -76,6 +78,7 @@ class VisionACCEnv(gym.Env):
         render_mode: str | None = None,
         give_up: float = GIVE_UP,
         server_args: tuple[str, ...] = (),
+        zoom: int = 1,
     ):
         if reward not in REWARDS:
             raise ValueError(f"reward {reward!r} is not one of {sorted(REWARDS)}")
@@ -83,6 +86,8 @@ class VisionACCEnv(gym.Env):
             raise ValueError("frame_stack and stack_stride must be >= 1")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not one of {self.metadata['render_modes']}")
+        image_size = pre.camera_size(zoom)  # checks zoom
+        self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
         self.reward_fn = REWARDS[reward]
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
@@ -98,7 +103,7 @@ class VisionACCEnv(gym.Env):
         self._stack = contextlib.ExitStack()
         addr = server if server is not None else self._stack.enter_context(local_server(*server_args))
         self.session = self._stack.enter_context(
-            Session(addr, image_format="gray", image_size=AGENT_IMAGE, give_up=give_up, client_name="vacc-env")
+            Session(addr, image_format="gray", image_size=image_size, give_up=give_up, client_name="vacc-env")
         )
         self._stacker = FrameStacker(frame_stack, stack_stride)
         self._last_image: np.ndarray | None = None
@@ -106,7 +111,7 @@ class VisionACCEnv(gym.Env):
     def _observe(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
         image = Session.image(obs)
         self._last_image = image
-        return self._stacker.push(pre.preprocess(image), obs["v_host"])
+        return self._stacker.push(pre.preprocess(image, self.zoom), obs["v_host"])
 
     @staticmethod
     def _info(obs: dict[str, Any]) -> dict[str, Any]:

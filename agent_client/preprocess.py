@@ -28,6 +28,15 @@ any fixed mask that keeps a distant lead whole.
 
 Rows and columns below are at the half resolution (200x200), with pixel centres at
 integers, so the 400 px image centre 199.5 maps to 99.5.
+
+**Zoom 2** (``zoom=2``, an improvement over the paper, not in it): the same 105x150
+window around the horizon, but cut from the 400x400 frame at full resolution,
+without the halving. The network then sees the road 8.8 to ~80 m ahead at twice the
+pixel scale: the lead at 55 m is ~16 px wide instead of ~8, and 5 m of gap change
+its width by ~1.5 px instead of ~0.7. Nearer than ~6.8 m from the camera its bottom
+leaves the window, but its body still fills most of it. The mask is the same
+geometry at twice the focal length. Checkpoints record their zoom, so a policy
+always gets the frames it was trained on.
 """
 
 from __future__ import annotations
@@ -35,7 +44,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["FRAME_H", "FRAME_W", "MASK", "preprocess", "preprocess_reference"]
+__all__ = ["FRAME_H", "FRAME_W", "MASK", "MASKS", "ZOOMS", "camera_size", "preprocess", "preprocess_reference"]
 
 FRAME_H = 105  # [px] network input height
 FRAME_W = 150  # [px] network input width
@@ -54,25 +63,50 @@ MASK_TOP = 1.8  # [m] tallest lead vehicle the mask keeps whole
 ROW0 = 200 - FRAME_H  # first kept row at 200x200 ("crop the top border")
 COL0 = (200 - FRAME_W) // 2  # first kept column at 200x200 (centre crop)
 
+ZOOMS = (1, 2)  # 1: the paper's x0.5 pipeline; 2: the same window at full resolution
+# zoom 2, at 400x400: the horizon stays on the same output row as with zoom 1
+VANISH_ROW_400 = 2 * (VANISH_ROW_200 + 0.25)  # [px] 199.5: half-res pixel i covers rows 2i, 2i + 1
+VANISH_COL_400 = 2 * (VANISH_COL_200 + 0.25)  # [px] 199.5
+ROW0_400 = int(VANISH_ROW_400 - (VANISH_ROW_200 - ROW0))  # 195
+COL0_400 = (400 - FRAME_W) // 2  # 125
 
-def _make_mask() -> np.ndarray:
+
+def camera_size(zoom: int) -> tuple[int, int]:
+    """The gray camera frame ``(width, height)`` [px] to ask the server for at ``zoom``."""
+    _check_zoom(zoom)
+    return (200, 200) if zoom == 1 else (400, 400)
+
+
+def _check_zoom(zoom: int) -> None:
+    if zoom not in ZOOMS:
+        raise ValueError(f"zoom must be one of {ZOOMS}, got {zoom!r}")
+
+
+def _make_mask(zoom: int = 1) -> np.ndarray:
     """The fixed mask on the 105x150 output grid: 255 keep, 0 drop."""
-    rows = np.arange(ROW0, ROW0 + FRAME_H, dtype=np.float64)[:, None]
-    cols = np.arange(COL0, COL0 + FRAME_W, dtype=np.float64)[None, :]
-    dy = rows - VANISH_ROW_200  # [px] below the horizon
-    dx = np.abs(cols - VANISH_COL_200)
-    rect_hw = FOCAL_200 * MASK_HALF_WIDTH / MASK_NEAR  # [px] lead at MASK_NEAR, either side
-    rect_bottom = FOCAL_200 * MOUNT_HEIGHT / MASK_NEAR  # [px] its bottom edge below horizon
-    rect_top = -FOCAL_200 * (MASK_TOP - MOUNT_HEIGHT) / MASK_NEAR  # [px] its roof (above)
+    if zoom == 1:
+        focal, row0, col0, v_row, v_col = FOCAL_200, ROW0, COL0, VANISH_ROW_200, VANISH_COL_200
+    else:  # full resolution: pixel centres of the 400 px frame
+        focal, row0, col0 = 2 * FOCAL_200, ROW0_400, COL0_400
+        v_row, v_col = VANISH_ROW_400, VANISH_COL_400
+    rows = np.arange(row0, row0 + FRAME_H, dtype=np.float64)[:, None]
+    cols = np.arange(col0, col0 + FRAME_W, dtype=np.float64)[None, :]
+    dy = rows - v_row  # [px] below the horizon
+    dx = np.abs(cols - v_col)
+    rect_hw = focal * MASK_HALF_WIDTH / MASK_NEAR  # [px] lead at MASK_NEAR, either side
+    rect_bottom = focal * MOUNT_HEIGHT / MASK_NEAR  # [px] its bottom edge below horizon
+    rect_top = -focal * (MASK_TOP - MOUNT_HEIGHT) / MASK_NEAR  # [px] its roof (above)
     corridor_hw = dy * (MASK_HALF_WIDTH / MOUNT_HEIGHT)  # [px] ground corridor at that row
     keep = ((dy >= rect_top) & (dy <= rect_bottom) & (dx <= rect_hw + 0.5)) | (
         (dy > rect_bottom) & (dx <= corridor_hw + 0.5)
     )
-    return np.where(keep, 255, 0).astype(np.uint8)
+    mask = np.where(keep, 255, 0).astype(np.uint8)
+    mask.setflags(write=False)
+    return mask
 
 
-MASK = _make_mask()  # (105, 150) uint8, 255 where the lead car can be
-MASK.setflags(write=False)
+MASKS = {z: _make_mask(z) for z in ZOOMS}  # (105, 150) uint8 each, 255 where the lead can be
+MASK = MASKS[1]  # the paper's
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -83,7 +117,7 @@ def _gray(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def preprocess(image: np.ndarray) -> np.ndarray:
+def preprocess(image: np.ndarray, zoom: int = 1) -> np.ndarray:
     """Turn one camera frame into the network's input.
 
     Only the window that survives the crop is converted and resized: with even
@@ -91,22 +125,29 @@ def preprocess(image: np.ndarray) -> np.ndarray:
     result equals :func:`preprocess_reference` exactly, at a fraction of the cost.
 
     Args:
-        image: uint8 camera frame, 400x400 RGB or gray (the paper's camera), or an
-            already halved 200x200 RGB or gray frame (then the resize is skipped).
-            Gray may be ``(H, W)`` or ``(H, W, 1)``.
+        image: uint8 camera frame, 400x400 RGB or gray (the paper's camera), or, with
+            ``zoom=1``, an already halved 200x200 RGB or gray frame (then the resize
+            is skipped). Gray may be ``(H, W)`` or ``(H, W, 1)``.
+        zoom: 1, the paper's pipeline; 2, the window at full resolution (400x400 only).
 
     Returns:
         ``(FRAME_H, FRAME_W)`` = (105, 150) uint8, C-contiguous, masked.
 
     Raises:
-        ValueError: wrong dtype or shape.
+        ValueError: wrong dtype, shape or zoom.
     """
+    _check_zoom(zoom)
     img = np.asarray(image)
     if img.dtype != np.uint8:
         raise ValueError(f"expected a uint8 image, got {img.dtype}")
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (1, 3)):
         raise ValueError(f"expected (H, W), (H, W, 1) or (H, W, 3), got shape {img.shape}")
     hw = img.shape[:2]
+    if zoom == 2:
+        if hw != (400, 400):
+            raise ValueError(f"zoom 2 needs the full 400x400 frame, got {hw[0]}x{hw[1]}")
+        out = np.ascontiguousarray(_gray(img[ROW0_400:ROW0_400 + FRAME_H, COL0_400:COL0_400 + FRAME_W]))
+        return cv2.bitwise_and(out, MASKS[2])
     if hw == (400, 400):
         win = img[2 * ROW0:, 2 * COL0:2 * (COL0 + FRAME_W)]
         out = cv2.resize(_gray(win), (FRAME_W, FRAME_H), interpolation=cv2.INTER_AREA)

@@ -46,6 +46,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--gamma", default=_D.gamma, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True))
 @click.option("--n-step", default=_D.n_step, show_default=True, type=click.IntRange(min=1), help="Rewards summed before bootstrapping (n-step return).")
 @click.option("--stack-stride", default=_D.stack_stride, show_default=True, type=click.IntRange(min=1), help="Control steps between stacked frames.")
+@click.option("--zoom", default=_D.zoom, show_default=True, type=click.Choice(["1", "2"]), help="1: the paper's halved camera; 2: the same window at full resolution.")
 @click.option("--checkpoint-every", default=_D.checkpoint_every, show_default=True, type=click.IntRange(min=1))
 @click.option("--log-every", default=_D.log_every, show_default=True, type=click.IntRange(min=1), help="Steps between loss/Q-value scalars.")
 @click.option("--init-from", default=None, type=click.Path(dir_okay=False, exists=True), help="Start from this policy checkpoint's weights (fine-tuning).")
@@ -75,6 +76,7 @@ def train(
     gamma: float,
     n_step: int,
     stack_stride: int,
+    zoom: str,
     checkpoint_every: int,
     log_every: int,
     init_from: str | None,
@@ -96,7 +98,7 @@ def train(
         eval_seconds=eval_seconds, eval_trajectories=trajectories, episode_seconds=episode_seconds,
         buffer_size=buffer_size, learning_starts=learning_starts, exploration_steps=exploration_steps,
         start_e=start_e, end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
-        target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride,
+        target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride, zoom=int(zoom),
         checkpoint_every=checkpoint_every, log_every=log_every, init_from=init_from, torch_threads=threads, cuda=not no_cuda,
     )  # fmt: skip
     if resume and not (Path(out) / "latest.pt").exists():

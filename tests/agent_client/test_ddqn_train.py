@@ -122,3 +122,32 @@ def test_init_from_must_match_the_stack(trained_run, tmp_path):
     out, _ = trained_run
     with pytest.raises(InputFileError, match="best.pt.*stride"):
         train(Config(**{**TINY.__dict__, "stack_stride": 3, "init_from": str(out / "best.pt")}), tmp_path / "ft", progress=False)
+
+
+def test_zoom2_trains_and_drives_with_full_resolution_frames(tmp_path):
+    """A zoom-2 checkpoint makes `vacc drive` ask for the 400x400 camera it was trained on."""
+    out = tmp_path / "z2"
+    summary = train(Config(**{**TINY.__dict__, "total_steps": 40, "learning_starts": 20, "zoom": 2}), out, progress=False)
+    assert summary["steps"] == 40
+    q, cfg = load_policy(out / "latest.pt")
+    assert cfg.zoom == 2
+    log = tmp_path / "z2.csv"
+    result = CliRunner().invoke(
+        main, ["drive", "--controller", "ddqn", "--checkpoint", str(out / "latest.pt"), "--trajectory", "test-1", "--duration", "2", "--log", str(log)]
+    )
+    assert result.exit_code == 0, result.output
+    assert len(list(csv.DictReader(open(log)))) == 21
+    with pytest.raises(Exception, match="zoom"):
+        train(Config(**{**TINY.__dict__, "init_from": str(out / "latest.pt")}), tmp_path / "ft", progress=False)
+
+
+def test_checkpoints_without_a_zoom_are_the_papers_pipeline(tmp_path):
+    """Models saved before the zoom setting existed (e.g. models/ice-gap.pt) load as zoom 1."""
+    from agent_client.ddqn import QNetwork, save_policy
+
+    path = tmp_path / "old.pt"
+    save_policy(QNetwork(), Config(), path)
+    ckpt = torch.load(path, weights_only=True)
+    del ckpt["config"]["zoom"]
+    torch.save(ckpt, path)
+    assert load_policy(path)[1].zoom == 1

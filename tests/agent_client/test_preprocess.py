@@ -72,6 +72,7 @@ def test_mask_numbers_match_the_simulators_default_camera() -> None:
     u, v = cfg.vanishing_point
     assert pp.VANISH_ROW_200 == pytest.approx(v / 2 - 0.25)  # 2x2 area average of centres
     assert pp.VANISH_COL_200 == pytest.approx(u / 2 - 0.25)
+    assert (pp.VANISH_COL_400, pp.VANISH_ROW_400) == pytest.approx((u, v))  # zoom 2: full resolution
     assert pp.MOUNT_HEIGHT == cfg.mount_height
     assert math.isclose(cfg.pitch, 0.0)
 
@@ -97,3 +98,50 @@ def test_lead_car_is_visible_through_the_mask() -> None:
 def test_bad_images_are_rejected(bad: np.ndarray) -> None:
     with pytest.raises(ValueError):
         preprocess(bad)
+
+
+# ----------------------------------------------------------------------------- zoom 2
+
+
+def test_zoom2_is_the_same_window_at_full_resolution() -> None:
+    """Zoom 2 cuts the 105x150 window around the horizon from the 400x400 frame."""
+    img = _frame(5)
+    gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    out = preprocess(img, zoom=2)
+    assert out.shape == (FRAME_H, FRAME_W) and out.dtype == np.uint8 and out.flags["C_CONTIGUOUS"]
+    window = gray[pp.ROW0_400:pp.ROW0_400 + FRAME_H, pp.COL0_400:pp.COL0_400 + FRAME_W]
+    np.testing.assert_array_equal(out, cv2.bitwise_and(window, pp.MASKS[2]))
+    np.testing.assert_array_equal(preprocess(np.full((400, 400), 255, np.uint8), zoom=2), pp.MASKS[2])
+    # the horizon sits on the same output row at both zooms
+    assert pp.VANISH_ROW_400 - pp.ROW0_400 == pp.VANISH_ROW_200 - pp.ROW0
+    assert pp.VANISH_COL_400 - pp.COL0_400 == pp.VANISH_COL_200 - pp.COL0
+
+
+def test_zoom2_doubles_the_lead_cars_width() -> None:
+    from sim_server.render import CameraConfig, Renderer
+    from sim_server.scene import CarView, SceneState
+
+    r = Renderer(CameraConfig())
+    empty = r.render(SceneState(host_s=10.0))
+
+    def width(gap: float, zoom: int) -> int:
+        img = r.render(SceneState(host_s=10.0, cars=(CarView(dx=gap, lane=0),)))
+        diff = preprocess(img, zoom).astype(int) != preprocess(empty, zoom)
+        assert np.all(pp.MASKS[zoom][diff] > 0)
+        cols = np.nonzero(diff.any(axis=0))[0]
+        return int(cols.max() - cols.min() + 1)
+
+    for gap in (20.0, 55.0, 100.0):
+        w1, w2 = width(gap, 1), width(gap, 2)
+        assert 1.6 * w1 <= w2 <= 2.4 * w1, (gap, w1, w2)
+    assert width(50.0, 2) - width(60.0, 2) >= 3  # 10 m of gap: >= 3 px at zoom 2
+
+
+def test_camera_size_follows_zoom_and_bad_zooms_are_rejected() -> None:
+    assert pp.camera_size(1) == (200, 200) and pp.camera_size(2) == (400, 400)
+    with pytest.raises(ValueError, match="zoom"):
+        pp.camera_size(3)
+    with pytest.raises(ValueError, match="zoom"):
+        preprocess(_frame(), zoom=0)
+    with pytest.raises(ValueError, match="400x400"):
+        preprocess(np.zeros((200, 200), np.uint8), zoom=2)
