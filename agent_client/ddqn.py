@@ -55,6 +55,7 @@ __all__ = [
     "linear_schedule",
     "ReplayMemory",
     "double_dqn_target",
+    "dqn_update",
     "save_policy",
     "load_policy",
     "DDQNController",
@@ -148,6 +149,14 @@ class Config:
     """Use CUDA when it is available."""
     log_every: int = 500
     """Steps between loss/Q scalars."""
+    servers: int = 1
+    """Simulator servers, each with its own acting client, feeding one learner. 1: the
+    single-stream loop of :func:`train`; more: :mod:`agent_client.distributed`."""
+    weight_sync_every: int = 20
+    """(servers > 1) gradient steps between broadcasts of the learner's weights to the
+    actors (M): actors act with a policy up to M updates old, plus one batch in flight."""
+    actor_batch: int = 50
+    """(servers > 1) transitions an actor collects per delivery to the learner."""
 
     def __post_init__(self) -> None:
         from agent_client.rewards import REWARDS
@@ -156,7 +165,7 @@ class Config:
             raise ValueError(f"reward {self.reward!r} is not one of {sorted(REWARDS)}")
         if self.scenario not in ("ice", "ev"):
             raise ValueError(f"scenario {self.scenario!r} is not 'ice' or 'ev'")
-        for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every", "frame_stack", "stack_stride"):
+        for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every", "frame_stack", "stack_stride", "servers", "weight_sync_every", "actor_batch"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
         if not 0.0 <= self.gamma < 1.0:
@@ -455,6 +464,32 @@ def double_dqn_target(
     return returns + discounts * bootstrap  # [B]
 
 
+def dqn_update(
+    q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, b: dict[str, np.ndarray], cfg: Config, device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One Double-DQN gradient step on a replay batch (:meth:`ReplayMemory.sample`).
+
+    Returns:
+        The Huber loss (scalar) and the online Q-values of the taken actions ``[B]``.
+    """
+    t = {k: torch.from_numpy(v).to(device) for k, v in b.items() if k != "indices"}
+    with torch.no_grad():
+        next_q_online = q(t["next_frames"], t["next_speeds"])  # [B, A]
+        next_q_target = target(t["next_frames"], t["next_speeds"])  # [B, A]
+        # after a termination: the terminal reward forever, r / (1 - γ), or 0
+        terminal_values = t["terminal_rewards"] / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
+        td_target = double_dqn_target(
+            t["returns"], t["terminated"], next_q_online, next_q_target, t["discounts"], terminal_values
+        )  # [B]
+    q_taken = q(t["frames"], t["speeds"]).gather(1, t["actions"][:, None]).squeeze(1)  # [B]
+    loss = F.smooth_l1_loss(q_taken, td_target)  # Huber
+    optimizer.zero_grad()
+    loss.backward()
+    nn.utils.clip_grad_norm_(q.parameters(), cfg.max_grad_norm)
+    optimizer.step()
+    return loss, q_taken
+
+
 # ---------------------------------------------------------------------- checkpoints
 
 
@@ -692,7 +727,7 @@ class Progress:
         if enabled and not self.tty:
             self.period = max(period, 30.0)  # a log file gets a line every 30 s
 
-    def update(self, step: int, sps: float, epsilon: float, recent_return: float, force: bool = False) -> None:
+    def update(self, step: int, sps: float, epsilon: float, recent_return: float, force: bool = False, extra: str = "") -> None:
         now = time.monotonic()
         if not self.enabled or (now - self._last < self.period and not force):
             return
@@ -703,7 +738,7 @@ class Progress:
         line = (
             f"[{'#' * filled}{'-' * (width - filled)}] {step}/{self.total} "
             f"{sps:5.0f} steps/s  eps {epsilon:.3f}  return {recent_return:8.2f}  eta {eta / 60:5.1f} min"
-        )
+        ) + (f"  {extra}" if extra else "")
         sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
         sys.stderr.flush()
 
@@ -775,6 +810,9 @@ def train(
         InputFileError: ``resume`` with a missing or bad checkpoint or replay file.
     """
     from agent_client.env import VisionACCEnv  # the env spawns servers; import late
+
+    if cfg.servers != 1:
+        raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.distributed.train_distributed")
 
     # The training session sits idle through evaluations and replay saves; keep the
     # spawned servers from freeing it (their default is 10 s of silence).
@@ -898,21 +936,7 @@ def train(
 
                 if step > cfg.learning_starts and step % cfg.train_every == 0:
                     b = memory.sample(cfg.batch_size, np_rng, cfg.n_step, cfg.gamma)
-                    t = {k: torch.from_numpy(v).to(device) for k, v in b.items() if k != "indices"}
-                    with torch.no_grad():
-                        next_q_online = q(t["next_frames"], t["next_speeds"])  # [B, A]
-                        next_q_target = target(t["next_frames"], t["next_speeds"])  # [B, A]
-                        # after a termination: the terminal reward forever, r / (1 - γ), or 0
-                        terminal_values = t["terminal_rewards"] / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
-                        td_target = double_dqn_target(
-                            t["returns"], t["terminated"], next_q_online, next_q_target, t["discounts"], terminal_values
-                        )  # [B]
-                    q_taken = q(t["frames"], t["speeds"]).gather(1, t["actions"][:, None]).squeeze(1)  # [B]
-                    loss = F.smooth_l1_loss(q_taken, td_target)  # Huber
-                    optimizer.zero_grad()
-                    loss.backward()
-                    nn.utils.clip_grad_norm_(q.parameters(), cfg.max_grad_norm)
-                    optimizer.step()
+                    loss, q_taken = dqn_update(q, target, optimizer, b, cfg, device)
                     if step % cfg.log_every < cfg.train_every:
                         log.add("losses/td_loss", loss.item(), step)
                         log.add("losses/q_values", q_taken.mean().item(), step)

@@ -53,6 +53,13 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--threads", default=_D.torch_threads, show_default=True, type=click.IntRange(min=1), help="torch CPU threads.")
 @click.option("--no-cuda", is_flag=True, help="Stay on the CPU even if CUDA is available.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
+@click.option("--servers", default=_D.servers, show_default=True, type=click.IntRange(min=1), help="Simulator servers, each with its own acting process, feeding one learner (docs/scale-out.md).")
+@click.option("--ray", "use_ray", is_flag=True, help="Run the servers and their actors as Ray actors (pip install 'vacc[ray]').")
+@click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT of a running cluster (default: a local Ray instance).")
+@click.option("--actor-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True), help="With --ray: CPUs reserved per actor (its server included).")
+@click.option("--max-restarts", default=3, show_default=True, type=click.IntRange(min=0), help="With --servers > 1 or --ray: restarts of a dead actor before it is given up.")
+@click.option("--weight-sync-every", default=_D.weight_sync_every, show_default=True, type=click.IntRange(min=1), help="With --servers > 1 or --ray: gradient steps between weight broadcasts to the actors (M).")
+@click.option("--actor-batch", default=_D.actor_batch, show_default=True, type=click.IntRange(min=1), help="With --servers > 1 or --ray: transitions per delivery from an actor.")
 def train(
     reward: str,
     scenario: str,
@@ -83,12 +90,22 @@ def train(
     threads: int,
     no_cuda: bool,
     quiet: bool,
+    servers: int,
+    use_ray: bool,
+    ray_address: str | None,
+    actor_cpus: float,
+    max_restarts: int,
+    weight_sync_every: int,
+    actor_batch: int,
 ) -> None:
     """Train a Double-DQN policy from camera frames against spawned simulator servers.
 
     Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay-STEP.npz) and
     OUT/best.pt (the policy with the best test evaluation; drive it with
     `vacc drive --controller ddqn --checkpoint OUT/best.pt`).
+
+    --servers K runs K simulator servers, each with its own acting process, feeding
+    one learner; --ray runs them as Ray actors on a Ray cluster instead.
     """
     trajectories = tuple(t.strip() for t in eval_trajectories.split(",") if t.strip())
     if not trajectories:
@@ -100,16 +117,35 @@ def train(
         start_e=start_e, end_e=end_e, learning_rate=learning_rate, batch_size=batch_size, train_every=train_every,
         target_sync_every=target_sync_every, gamma=gamma, n_step=n_step, stack_stride=stack_stride, zoom=int(zoom),
         checkpoint_every=checkpoint_every, log_every=log_every, init_from=init_from, torch_threads=threads, cuda=not no_cuda,
+        servers=servers, weight_sync_every=weight_sync_every, actor_batch=actor_batch,
     )  # fmt: skip
+    if ray_address is not None and not use_ray:
+        raise click.UsageError("--ray-address needs --ray")
+    distributed = use_ray or servers > 1
     if resume and not (Path(out) / "latest.pt").exists():
         raise click.UsageError(f"--resume: {Path(out) / 'latest.pt'} does not exist")
     # A plain `kill` should still reap the spawned servers (the finally blocks run).
     signal.signal(signal.SIGTERM, _terminate)
     try:
-        summary = run_training(cfg, out, resume=resume, progress=not quiet)
+        if distributed:
+            from agent_client.distributed import import_ray, train_distributed
+
+            if use_ray:
+                import_ray()  # before any work: say how to install it
+            summary = train_distributed(
+                cfg, out, resume=resume, progress=not quiet, use_ray=use_ray, ray_address=ray_address,
+                actor_cpus=actor_cpus, max_restarts=max_restarts,
+            )  # fmt: skip
+        else:
+            summary = run_training(cfg, out, resume=resume, progress=not quiet)
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
+    if distributed:
+        click.echo(
+            f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "
+            f"restarts {summary['restarts_by_actor']}, {summary['env_steps_per_s']:.0f} env steps/s"
+        )
     for r in summary["last_eval"]:
         click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
     (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")

@@ -1,0 +1,264 @@
+"""Many simulator servers, one learner, without Ray: `vacc train --servers K` (issue #10)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from agent_client.ddqn import Config, ReplayMemory, train
+from agent_client.distributed import RAY_INSTALL_HINT, StreamActor, StreamReplay, train_distributed
+from agent_client.errors import InputFileError
+from agent_client.preprocess import FRAME_H, FRAME_W
+from vacc.cli import main
+
+SMALL = Config(
+    total_steps=300, learning_starts=100, train_every=8, batch_size=8, buffer_size=1000, exploration_steps=200,
+    target_sync_every=80, episode_seconds=3.0, checkpoint_every=10**6, eval_every=0, eval_trajectories=(),
+    log_every=50, servers=2, actor_batch=20, weight_sync_every=5,
+)  # fmt: skip
+
+CLI_ARGS = [
+    "train", "--reward", "gap", "--steps", "300", "--learning-starts", "100", "--train-every", "8",
+    "--batch-size", "8", "--buffer-size", "1000", "--exploration-steps", "200", "--episode-seconds", "3",
+    "--eval-every", "0", "--eval-trajectories", "test-1", "--eval-seconds", "0.5", "--log-every", "50",
+    "--actor-batch", "20", "--weight-sync-every", "5", "--quiet", "--seed", "4",
+]  # fmt: skip
+
+
+def _procs() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, command line) of every process."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            out[int(d.name)] = (ppid, cmd)
+    return out
+
+
+def _servers_of(pids) -> list[int]:
+    """Simulator servers spawned by any of ``pids`` (they carry --parent-pid)."""
+    marks = {f"--parent-pid {p} " for p in pids}
+    return [pid for pid, (_, cmd) in _procs().items() if "sim_server" in cmd and any(m in cmd + " " for m in marks)]
+
+
+def _descendants(root: int) -> set[int]:
+    procs = _procs()
+    found, frontier = set(), {root}
+    while frontier:
+        frontier = {pid for pid, (ppid, _) in procs.items() if ppid in frontier} - found
+        found |= frontier
+    return found
+
+
+def _wait_gone(pids, timeout: float = 15.0) -> list[int]:
+    """Wait until none of ``pids`` is alive; return those still alive."""
+    deadline = time.monotonic() + timeout
+    while True:
+        alive = [p for p in pids if Path(f"/proc/{p}").exists() and "(Z)" not in _state(p)]
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.2)
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0].join("()")
+    except OSError:
+        return "(gone)"
+
+
+def _assert_no_orphans(actor_pids) -> None:
+    assert _wait_gone(list(actor_pids)) == [], "actor processes left behind"
+    deadline = time.monotonic() + 15
+    while _servers_of(actor_pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _servers_of(actor_pids) == [], "simulator servers left behind"
+
+
+def _batch(rng, starts, n_frames) -> dict:
+    """A synthetic actor batch: ``starts`` marks episode starts among ``n_frames`` records."""
+    start = np.zeros(n_frames, np.bool_)
+    start[list(starts)] = True
+    return {
+        "frames": rng.integers(0, 256, (n_frames, FRAME_H, FRAME_W), dtype=np.uint8),
+        "speeds": rng.uniform(20, 30, n_frames).astype(np.float32),
+        "start": start,
+        "actions": rng.integers(0, 21, n_frames).astype(np.uint8),
+        "rewards": rng.uniform(-1, 1, n_frames).astype(np.float32),
+        "terminated": np.zeros(n_frames, np.bool_),
+        "truncated": np.zeros(n_frames, np.bool_),
+    }
+
+
+def test_stream_replay_samples_every_stream_and_keeps_the_bytes_per_transition():
+    cfg = Config(buffer_size=3001, servers=3, frame_stack=8, stack_stride=2)
+    replay = StreamReplay(cfg)
+    assert [m.capacity for m in replay.streams] == [1001, 1000, 1000] and replay.capacity == 3001
+    assert replay.nbytes / replay.capacity <= 1.1 * FRAME_H * FRAME_W
+    rng = np.random.default_rng(0)
+    for i, n in enumerate((600, 300, 0)):  # stream 2 has nothing yet: never sampled
+        if n:
+            b = _batch(rng, [0, n // 2], n)
+            for j in range(n):
+                if b["start"][j]:
+                    replay.start(i, b["frames"][j], float(b["speeds"][j]))
+                else:
+                    replay.add(i, int(b["actions"][j]), float(b["rewards"][j]), False, False, b["frames"][j], float(b["speeds"][j]))
+    counts = np.zeros(3)
+    for _ in range(50):
+        s = replay.sample(32, rng, n_step=3, gamma=0.9)
+        assert s["frames"].shape == (32, 8, FRAME_H, FRAME_W) and s["next_frames"].shape == (32, 8, FRAME_H, FRAME_W)
+        assert s["returns"].shape == (32,) and s["actions"].dtype == np.int64
+    # proportional to the streams' sizes (600 : 300 : 0 slots)
+    rng = np.random.default_rng(1)
+    sizes = np.array([len(m) if m.transitions else 0 for m in replay.streams], float)
+    for _ in range(200):
+        counts += rng.multinomial(32, sizes / sizes.sum())
+    assert counts[2] == 0 and counts[0] / counts[1] == pytest.approx(2.0, rel=0.1)
+
+
+def test_actor_episodes_are_a_function_of_seed_and_index():
+    """The same (run seed, actor) plays the same episodes; another actor plays others;
+    a restarted actor continues its sequence at the episode it is told."""
+    cfg = Config(episode_seconds=1.0, seed=11, frame_stack=8, stack_stride=2)
+    batches = []
+    for index, base in ((0, 0), (0, 0), (1, 0), (0, 1)):
+        actor = StreamActor(cfg, index, episode_base=base)
+        try:
+            batches.append(actor.collect(25, epsilon=1.0))  # random actions, from the episode's generator
+        finally:
+            actor.close()
+            actor.close()  # safe twice
+    a, b, other, later = batches
+    for key in ("frames", "speeds", "start", "actions", "rewards", "terminated", "truncated", "episode"):
+        np.testing.assert_array_equal(a[key], b[key])
+    assert a["steps"] == 25 and len(a["frames"]) == 25 + a["start"].sum()
+    assert list(np.unique(a["episode"])) == [0, 1, 2]  # 10-step episodes
+    assert not np.array_equal(a["actions"], other["actions"])
+    # the actor restarted at episode 1 replays actor 0's episode 1
+    first_of_1 = np.flatnonzero(a["episode"] == 1)
+    np.testing.assert_array_equal(later["frames"][:5], a["frames"][first_of_1[:5]])
+    np.testing.assert_array_equal(later["actions"][:5], a["actions"][first_of_1[:5]])
+
+
+def test_servers_2_trains_without_ray_and_ray_flag_says_how_to_install(tmp_path, monkeypatch):
+    """`vacc train --servers 2` with `import ray` failing: both actors deliver; `--ray` explains."""
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    result = CliRunner().invoke(main, [*CLI_ARGS, "--servers", "2", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    print(f"--servers 2, 300 steps: {time.monotonic() - t0:.1f} s")
+    assert "trained 300 steps" in result.output and "2 actors (local)" in result.output
+    for name in ("config.json", "scalars.csv", "latest.pt", "best.pt", "summary.json", "replay-300-0.npz", "replay-300-1.npz"):
+        assert (out / name).is_file(), name
+    rows = list(csv.DictReader(open(out / "scalars.csv")))
+    last = {r["name"]: float(r["value"]) for r in rows}
+    assert last["charts/transitions/actor-0"] > 0 and last["charts/transitions/actor-1"] > 0
+    assert last["charts/transitions/actor-0"] + last["charts/transitions/actor-1"] == 300
+    assert last["charts/actor_restarts"] == 0 and last["charts/updates"] == 300 // 8 - 100 // 8
+    for name in ("charts/episodic_return", "charts/SPS", "losses/td_loss", "charts/policy_lag_updates", "eval/gap_rmse_m"):
+        assert name in last, name
+    ckpt = torch.load(out / "latest.pt", weights_only=True)
+    assert ckpt["state"]["global_step"] == 300 and ckpt["config"]["servers"] == 2
+    assert ckpt["optimizer"]["state"][0]["step"] == 300 // 8 - 100 // 8
+    import json
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["actor_pids"]) == 2
+    _assert_no_orphans(summary["actor_pids"])
+
+    result = CliRunner().invoke(main, [*CLI_ARGS, "--servers", "2", "--ray", "--out", str(tmp_path / "ray")])
+    assert result.exit_code == 1
+    assert RAY_INSTALL_HINT in result.output and "pip install 'vacc[ray]'" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "ray").exists()
+
+
+def test_a_killed_local_actor_is_restarted_and_training_goes_on(tmp_path):
+    killed: list[int] = []
+
+    def kill_once(step, i, batch):
+        if i == 0 and step >= 150 and not killed:
+            killed.append(batch["pid"])
+            os.kill(batch["pid"], signal.SIGKILL)  # no clean-up runs in the actor
+
+    cfg = Config(**{**SMALL.__dict__, "total_steps": 1200})
+    t0 = time.monotonic()
+    summary = train_distributed(cfg, tmp_path / "run", progress=False, on_batch=kill_once)
+    print(f"kill test: {time.monotonic() - t0:.1f} s, {summary['transitions_by_actor']}, restarts {summary['restarts_by_actor']}")
+    assert killed and summary["steps"] == 1200
+    assert summary["restarts_by_actor"] == [1, 0]
+    assert len(summary["actor_pids"]) == 3 and killed[0] in summary["actor_pids"]
+    rows = list(csv.DictReader(open(tmp_path / "run" / "scalars.csv")))
+    restarts = [float(r["value"]) for r in rows if r["name"] == "charts/actor_restarts"]
+    assert restarts[-1] == 1
+    # the restarted actor delivered: its count grew after the restart was logged
+    step_of_restart = min(int(r["step"]) for r in rows if r["name"] == "charts/actor_restarts" and float(r["value"]) == 1)
+    a0 = [(int(r["step"]), float(r["value"])) for r in rows if r["name"] == "charts/transitions/actor-0"]
+    before = max((v for s, v in a0 if s <= step_of_restart), default=0.0)
+    assert a0[-1][1] > before
+    _assert_no_orphans(summary["actor_pids"])
+
+
+def test_resume_of_a_two_server_run(tmp_path):
+    run = tmp_path / "run"
+    first = train_distributed(Config(**{**SMALL.__dict__, "total_steps": 200}), run, progress=False)
+    assert first["steps"] == 200
+    resumed = train_distributed(SMALL, run, resume=True, progress=False)
+    assert resumed["steps"] == 300 and resumed["updates"] == 300 // 8 - 100 // 8
+    ckpt = torch.load(run / "latest.pt", weights_only=True)
+    assert ckpt["optimizer"]["state"][0]["step"] == resumed["updates"]
+    assert sum(ckpt["state"]["transitions_by_actor"]) == 300
+    assert sorted(p.name for p in run.glob("replay-*.npz")) == ["replay-300-0.npz", "replay-300-1.npz"]
+    for i in range(2):
+        assert ReplayMemory(500, 8, 2).load(run / f"replay-300-{i}.npz") == 300
+    _assert_no_orphans(first["actor_pids"] + resumed["actor_pids"])
+    # the wrong trainer for the checkpoint is refused, by name
+    with pytest.raises(InputFileError, match="other settings.*servers"):
+        train(Config(**{**SMALL.__dict__, "servers": 1}), run, resume=True, progress=False)
+    single = tmp_path / "single"
+    train(Config(**{**SMALL.__dict__, "servers": 1, "total_steps": 20, "learning_starts": 10}), single, progress=False)
+    with pytest.raises(InputFileError, match="not a checkpoint of a multi-server run"):
+        train_distributed(SMALL, single, resume=True, progress=False)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL], ids=["SIGTERM", "SIGINT", "SIGKILL"])
+def test_learner_signals_leave_no_process_behind(tmp_path, sig):
+    """SIGTERM, Ctrl-C (SIGINT) or kill -9 of `vacc train --servers 2`: actors and servers all go."""
+    out = tmp_path / "run"
+    args = [*CLI_ARGS, "--servers", "2", "--steps", "100000", "--log-every", "20", "--out", str(out)]
+    with open(tmp_path / "stderr.txt", "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # until both actors deliver
+            rows = list(csv.DictReader(open(out / "scalars.csv"))) if (out / "scalars.csv").exists() else []
+            if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
+                break
+            time.sleep(0.3)
+        tree = _descendants(proc.pid)
+        assert len(_servers_of(tree)) == 2, tree
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
+    assert _wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
+    if sig != signal.SIGKILL:
+        assert "Traceback" not in stderr, stderr[-2000:]
