@@ -168,17 +168,28 @@ def ev_window(name: str, start: float, duration: float, dt: float) -> np.ndarray
     return from_trace(t_s[sel], v[sel], dt, LIMITS["ev"], duration)
 
 
-def _random_ev_window(rng: np.random.Generator, duration: float, dt: float) -> np.ndarray:
+def random_ev_window(rng: np.random.Generator, duration: float) -> tuple[str, int, int]:
+    """Pick a training window of a packaged trace: ``(file, first row, last row)``.
+
+    Continuous 1 Hz driving that starts inside Table 2's EV initial speed range and
+    shares no second with a test window, so training never sees the test data.
+    """
     lim = LIMITS["ev"]
     for _ in range(1000):
         name = EV_TRACE_FILES[int(rng.integers(len(EV_TRACE_FILES)))]
         t_s, v = _load_trace(name)
         i = int(rng.integers(0, len(t_s) - int(duration) - 1))
         j = i + int(duration)
-        # Continuous 1 Hz driving that starts inside Table 2's initial speed range.
-        if t_s[j] - t_s[i] == duration and lim.v0_lead[0] <= v[i] <= lim.v0_lead[1]:
-            return from_trace(t_s[i : j + 1], v[i : j + 1], dt, lim, duration)
+        held_out = any(f == name and t_s[i] < start + TEST_DURATION and start < t_s[j] for f, start in EV_TEST_WINDOWS.values())
+        if t_s[j] - t_s[i] == duration and lim.v0_lead[0] <= v[i] <= lim.v0_lead[1] and not held_out:
+            return name, i, j
     raise TrajectoryError("no usable window found in the real-world traces")
+
+
+def _random_ev_window(rng: np.random.Generator, duration: float, dt: float) -> np.ndarray:
+    name, i, j = random_ev_window(rng, duration)
+    t_s, v = _load_trace(name)
+    return from_trace(t_s[i : j + 1], v[i : j + 1], dt, LIMITS["ev"], duration)
 
 
 def build(

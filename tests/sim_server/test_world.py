@@ -155,3 +155,14 @@ def test_trace_trajectory_and_errors():
         T.build("ice", "test-9", np.random.default_rng(0), 0.02)
     with pytest.raises(ScenarioError):
         T.build("diesel", "test-1", np.random.default_rng(0), 0.02)
+
+
+def test_random_ev_training_windows_never_overlap_the_test_windows():
+    from sim_server.trajectory import _load_trace, random_ev_window
+
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        name, i, j = random_ev_window(rng, T.RANDOM_DURATION)
+        t_s, _ = _load_trace(name)
+        for f, start in T.EV_TEST_WINDOWS.values():
+            assert f != name or t_s[j] <= start or t_s[i] >= start + T.TEST_DURATION, (name, t_s[i], start)
