@@ -102,6 +102,16 @@ def _controller(job: Job) -> Any:
     return DDQNController.from_checkpoint(job.checkpoint), "gray"
 
 
+def _image_size(controller: Any) -> tuple[int, int]:
+    """The camera a controller needs: a DDQN checkpoint's zoom decides it."""
+    cfg = getattr(controller, "cfg", None)
+    if cfg is None:
+        return (200, 200)  # unused: image_format "none"
+    from agent_client.preprocess import camera_size
+
+    return camera_size(cfg.zoom)
+
+
 def run_job(job: Job) -> Job:
     """Drive one job through its own server process; returns it when its log is written."""
     import torch
@@ -115,7 +125,7 @@ def run_job(job: Job) -> Job:
     log = Path(job.log)
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
-    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=(200, 200), client_name=f"vacc-evaluate/{job.method}") as s:
+    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=_image_size(controller), client_name=f"vacc-evaluate/{job.method}") as s:
         drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log)
     if job.method == "lead":
         _lead_log(log, Path(job.log))

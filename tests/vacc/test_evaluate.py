@@ -67,12 +67,14 @@ def test_bad_methods_and_human_files(tmp_path):
     assert result.returncode != 0 and "TRAJ=PATH" in result.stderr
 
 
-def test_ddqn_methods_drive_from_the_models_folder(tmp_path):
+@pytest.mark.parametrize("zoom", [1, 2])
+def test_ddqn_methods_drive_from_the_models_folder(tmp_path, zoom):
+    """Each checkpoint gets the camera its zoom needs (zoom 2: 400x400, else preprocess raises)."""
     from agent_client.ddqn import Config, QNetwork, save_policy
 
     models = tmp_path / "models"
     models.mkdir()
-    save_policy(QNetwork(), Config(), models / "ice-gap.pt")
+    save_policy(QNetwork(), Config(zoom=zoom), models / "ice-gap.pt")
     out = tmp_path / "out"
     result = vacc("evaluate", "--out", str(out), "--models", str(models), "--methods", "ddqn-gap", "--duration", "2", "--jobs", "2")
     assert result.returncode == 0, result.stderr
