@@ -3,7 +3,8 @@
 Drawn with OpenCV, which the project already needs, so no plotting library is
 required::
 
-    python -m agent_client.curves runs/ice-gap/scalars.csv docs/img/training-ice-gap.png
+    python -m agent_client.curves runs/ice-gap/scalars.csv docs/img/training-ice-gap.png \
+        [TITLE] [--curve-csv models/ice-gap.curve.csv]
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["read_scalars", "plot_learning_curve"]
+__all__ = ["read_scalars", "plot_learning_curve", "export_curve"]
 
 W, H = 900, 650  # [px] image
 PANEL_H = 250  # [px] each panel's plot area
@@ -107,7 +108,36 @@ def plot_learning_curve(scalars_csv: str | Path, out_png: str | Path, title: str
         raise OSError(f"could not write {out_png}")
 
 
+def export_curve(scalars: str | Path, out_csv: str | Path, bin_steps: int = 5000, offset: int = 0) -> int:
+    """Write ``step,avg_reward`` (reward per step of the training episodes that ended in
+    each ``bin_steps`` bin; the shipped ``models/<name>.curve.csv`` files) and return the rows.
+
+    ``offset`` shifts the steps, e.g. by the steps of the run a fine-tune started from.
+    """
+    s = read_scalars(scalars)
+    steps, returns = s.get("charts/episodic_return", (np.zeros(0), np.zeros(0)))
+    _, lengths = s.get("charts/episodic_length", (np.zeros(0), np.zeros(0)))
+    rows = []
+    for hi in range(bin_steps, int(steps.max()) + bin_steps if len(steps) else 0, bin_steps):
+        sel = (steps > hi - bin_steps) & (steps <= hi)
+        if lengths[sel].sum() > 0:
+            rows.append((hi + offset, returns[sel].sum() / lengths[sel].sum()))
+    with open(out_csv, "w", newline="") as f:
+        f.write(f"# average reward per step of training episodes, in {bin_steps:,}-step bins; from the run's scalars.csv\n")
+        f.write("step,avg_reward\n")
+        f.writelines(f"{st},{v:.4f}\n" for st, v in rows)
+    return len(rows)
+
+
 if __name__ == "__main__":
-    if len(sys.argv) not in (3, 4):
-        sys.exit("usage: python -m agent_client.curves SCALARS.csv OUT.png [TITLE]")
-    plot_learning_curve(sys.argv[1], sys.argv[2], sys.argv[3] if len(sys.argv) == 4 else "")
+    args = sys.argv[1:]
+    curve_csv = None
+    if "--curve-csv" in args:
+        i = args.index("--curve-csv")
+        curve_csv = args[i + 1] if i + 1 < len(args) else sys.exit("--curve-csv needs a path")
+        del args[i : i + 2]
+    if len(args) not in (2, 3):
+        sys.exit("usage: python -m agent_client.curves SCALARS.csv OUT.png [TITLE] [--curve-csv OUT.curve.csv]")
+    plot_learning_curve(args[0], args[1], args[2] if len(args) == 3 else "")
+    if curve_csv is not None:
+        export_curve(args[0], curve_csv)
