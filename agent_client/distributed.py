@@ -141,6 +141,8 @@ RAY_INSTALL_HINT = "--ray needs Ray, an optional extra: pip install 'vacc[ray]' 
 MAX_RESTARTS = 3  # restarts per actor before it is given up
 STALL_TIMEOUT = 300.0  # [s] no batch from any actor for this long: stop with an error
 RESTART_TIMEOUT = 120.0  # [s] an actor failing calls for this long is given up
+STARTUP_TIMEOUT = 120.0  # [s] the learner waits this long for every actor's server at the start
+RETRY_DELAY = 0.5  # [s] before a failed Ray call is resubmitted
 STOP_TIMEOUT = 20.0  # [s] an actor asked to stop gets this long before SIGTERM
 
 
@@ -154,6 +156,9 @@ def import_ray() -> Any:
     Raises:
         RayMissingError: Ray is not installed; the message says how to install it.
     """
+    # Ray's crash handler would print a C++ stack dump and abort on every SIGTERM,
+    # before our finally blocks reap the actors. Set the variable to 0 to keep it.
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     try:
         import ray
     except ImportError:
@@ -287,6 +292,16 @@ class _RayStream:
         self.cfg, self.index, self.server_args = cfg, index, server_args
         self.actor: StreamActor | None = None
 
+    def start(self, episode_base: int) -> int:
+        """Start the server and env now (else the first :meth:`collect` does); returns the pid."""
+        try:
+            if self.actor is None:
+                self.actor = StreamActor(self.cfg, self.index, self.server_args, episode_base)
+        except BaseException:
+            self.close()
+            raise
+        return os.getpid()
+
     def collect(self, n: int, epsilon: float, weights: list[Any], version: int, episode_base: int) -> dict[str, Any]:
         import ray
 
@@ -309,10 +324,44 @@ class _RayStream:
 # ------------------------------------------------------------------- local actors
 
 
+class _Shared:
+    """What the learner shares with its local actors: weights, ε and a stop flag.
+
+    The weights are a seqlock (one writer, readers that retry): no lock is held by
+    an actor, because an actor killed while holding a ``multiprocessing.Lock`` (or
+    inside ``Event.is_set``) would block the learner forever.
+    """
+
+    def __init__(self, ctx: Any, n_params: int):
+        self.data = ctx.RawArray("f", n_params)
+        self.seq = ctx.RawValue("q", 0)  # odd while the learner writes
+        self.version = ctx.RawValue("q", -1)
+        self.epsilon = ctx.RawValue("d", 1.0)
+        self.stop = ctx.RawValue("b", 0)
+
+    def write(self, flat: np.ndarray, version: int) -> None:
+        """(Learner) publish the weights of ``version`` updates."""
+        self.seq.value += 1
+        np.frombuffer(self.data, np.float32)[:] = flat
+        self.version.value = version
+        self.seq.value += 1
+
+    def read(self) -> tuple[np.ndarray, int] | None:
+        """(Actor) a consistent copy of the weights and their version; None if the
+        learner kept writing through 100 tries (the actor keeps its old weights)."""
+        for _ in range(100):
+            seq = self.seq.value
+            if seq % 2 == 0:
+                flat, version = np.frombuffer(self.data, np.float32).copy(), self.version.value
+                if self.seq.value == seq:
+                    return flat, version
+            time.sleep(0.001)
+        return None
+
+
 def _local_actor_main(
-    cfg: Config, index: int, server_args: tuple[str, ...], episode_base: int, out: Connection,
-    weights: Any, version: Any, lock: Any, epsilon: Any, stop: Any, learner_pid: int,
-) -> None:  # fmt: skip
+    cfg: Config, index: int, server_args: tuple[str, ...], episode_base: int, out: Connection, shared: _Shared, learner_pid: int
+) -> None:
     """A local actor process: collect batches and send them until told to stop or orphaned."""
     os.setpgrp()  # a terminal's Ctrl-C goes to the learner, which stops us in order
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -321,7 +370,7 @@ def _local_actor_main(
         raise SystemExit(128 + signum)
 
     signal.signal(signal.SIGTERM, _terminate)
-    alive = lambda: not stop.is_set() and os.getppid() == learner_pid  # noqa: E731
+    alive = lambda: not shared.stop.value and os.getppid() == learner_pid  # noqa: E731
     outbox: queue.Queue[dict[str, Any] | None] = queue.Queue(maxsize=1)
 
     def send() -> None:  # a thread, so that the next batch is collected while this one is sent
@@ -334,12 +383,11 @@ def _local_actor_main(
     actor = None
     try:
         actor = StreamActor(cfg, index, server_args, episode_base)
-        flat = np.frombuffer(weights, np.float32)
+        outbox.put({"ready": os.getpid()})
         while alive():
-            if version.value != actor.version:
-                with lock:
-                    actor.set_weights(flat.copy(), version.value)
-            batch = actor.collect(cfg.actor_batch, epsilon.value)
+            if shared.version.value != actor.version and (got := shared.read()) is not None:
+                actor.set_weights(*got)
+            batch = actor.collect(cfg.actor_batch, shared.epsilon.value)
             while alive():
                 try:
                     outbox.put(batch, timeout=0.5)
@@ -369,34 +417,40 @@ class _LocalPool:
     def __init__(self, cfg: Config, server_args: tuple[str, ...], max_restarts: int, n_params: int):
         self.cfg, self.server_args, self.max_restarts = cfg, server_args, max_restarts
         self.ctx = mp.get_context("spawn")
-        self.weights = self.ctx.RawArray("f", n_params)
-        self.version = self.ctx.RawValue("q", -1)
-        self.lock = self.ctx.Lock()
-        self.epsilon = self.ctx.RawValue("d", 1.0)
-        self.stop = self.ctx.Event()
+        self.shared = _Shared(self.ctx, n_params)
         self.actors: list[_Local | None] = [None] * cfg.servers
         self.restarts = [0] * cfg.servers
 
-    def start(self, episode_bases: list[int]) -> None:
+    def start(self, episode_bases: list[int], note: Callable[[str], None]) -> None:
+        """Spawn the actors and wait (up to ``STARTUP_TIMEOUT``) until each has its server."""
         for i in range(self.cfg.servers):
             self._spawn(i, episode_bases[i])
+        waiting = {a.conn: i for i, a in enumerate(self.actors) if a is not None}
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        while waiting and time.monotonic() < deadline:
+            for conn in wait_connections(list(waiting), min(1.0, max(0.0, deadline - time.monotonic()))):
+                i = waiting.pop(conn)  # type: ignore[arg-type]
+                try:
+                    conn.recv()  # type: ignore[union-attr]
+                except (EOFError, OSError):
+                    self._died(i, episode_bases[i], note)  # its replacement is not waited for
+        if waiting:
+            note(f"actors {sorted(waiting.values())} not ready after {STARTUP_TIMEOUT:.0f} s; starting without waiting for them")
 
     def _spawn(self, i: int, episode_base: int) -> None:
         reader, writer = self.ctx.Pipe(duplex=False)
-        args = (self.cfg, i, self.server_args, episode_base, writer, self.weights, self.version, self.lock, self.epsilon, self.stop, os.getpid())
+        args = (self.cfg, i, self.server_args, episode_base, writer, self.shared, os.getpid())
         proc = self.ctx.Process(target=_local_actor_main, args=args, name=f"vacc-actor-{i}", daemon=True)
         proc.start()
         writer.close()  # ours: so that the reader sees EOF when the actor dies, even mid-message
         self.actors[i] = _Local(proc, reader)
 
     def publish(self, flat: np.ndarray, version: int, epsilon: float) -> None:
-        with self.lock:
-            np.frombuffer(self.weights, np.float32)[:] = flat
-            self.version.value = version
-        self.epsilon.value = epsilon
+        self.shared.write(flat, version)
+        self.shared.epsilon.value = epsilon
 
     def set_epsilon(self, epsilon: float) -> None:
-        self.epsilon.value = epsilon
+        self.shared.epsilon.value = epsilon
 
     def alive(self) -> int:
         return sum(a is not None for a in self.actors)
@@ -408,9 +462,12 @@ class _LocalPool:
         for conn in wait_connections(list(conns), timeout):
             i = conns[conn]  # type: ignore[index]
             try:
-                got.append((i, conn.recv()))  # type: ignore[union-attr]
+                msg = conn.recv()  # type: ignore[union-attr]
             except (EOFError, OSError):
                 self._died(i, episode_bases[i], note)
+                continue
+            if "ready" not in msg:  # a restarted actor says it is ready first
+                got.append((i, msg))
         return got
 
     def _died(self, i: int, episode_base: int, note: Callable[[str], None]) -> None:
@@ -428,7 +485,7 @@ class _LocalPool:
         self._spawn(i, episode_base)
 
     def close(self) -> None:
-        self.stop.set()
+        self.shared.stop.value = 1
         deadline = time.monotonic() + STOP_TIMEOUT
         for a in self.actors:
             if a is not None:
@@ -479,11 +536,23 @@ class _RayPool:
         self.failing_since: list[float | None] = [None] * cfg.servers
         self.restarts = [0] * cfg.servers  # counted by the learner from new incarnations
         self.inflight: dict[Any, int] = {}
+        self.retries: dict[int, tuple[float, int]] = {}  # actor -> (when, calls) to resubmit
         self.weights: Any = None
         self.version = -1
         self.epsilon = 1.0
 
-    def start(self, episode_bases: list[int]) -> None:
+    def start(self, episode_bases: list[int], note: Callable[[str], None]) -> None:
+        """Start every actor's server, wait (up to ``STARTUP_TIMEOUT``) for them, then the calls."""
+        ray = self.ray
+        starting = {h.start.remote(episode_bases[i]): i for i, h in enumerate(self.handles)}
+        ready, rest = ray.wait(list(starting), num_returns=len(starting), timeout=STARTUP_TIMEOUT)
+        for ref in ready:
+            try:
+                ray.get(ref)
+            except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as exc:
+                note(f"actor {starting[ref]} failed to start ({type(exc).__name__}: {_first_line(exc)}); its calls will retry")
+        if rest:
+            note(f"actors {sorted(starting[r] for r in rest)} not ready after {STARTUP_TIMEOUT:.0f} s; starting without waiting for them")
         for i in range(self.cfg.servers):
             for _ in range(self.depth):
                 self._submit(i, episode_bases[i])
@@ -502,10 +571,19 @@ class _RayPool:
         return self.dead.count(False)
 
     def poll(self, timeout: float, episode_bases: list[int], note: Callable[[str], None]) -> list[tuple[int, dict[str, Any]]]:
-        """Batches that have arrived within ``timeout`` [s]; each is replaced by a new call."""
+        """Batches that have arrived within ``timeout`` [s]; each is replaced by a new call.
+
+        A failed call is resubmitted after ``RETRY_DELAY`` (Ray may still be restarting
+        the actor), with the episode number the learner has reached for it."""
         ray = self.ray
+        now = time.monotonic()
+        for i, (when, calls) in list(self.retries.items()):
+            if when <= now:
+                del self.retries[i]
+                for _ in range(calls):
+                    self._submit(i, episode_bases[i])
         if not self.inflight:
-            time.sleep(timeout)
+            time.sleep(min([timeout, *(when - now for when, _ in self.retries.values())]) if self.retries else timeout)
             return []
         ready, rest = ray.wait(list(self.inflight), num_returns=1, timeout=timeout)
         if ready and rest:
@@ -520,17 +598,23 @@ class _RayPool:
                 if not self.dead[i]:
                     self.dead[i] = True
                     note(f"actor {i} is dead and Ray will not restart it: {_first_line(exc)}")
+                    self.retries.pop(i, None)
                 continue
             except (ray.exceptions.RayActorError, ray.exceptions.RayTaskError) as exc:
                 # ActorUnavailableError: Ray is restarting it. RayTaskError: collect raised
                 # (e.g. its server failed); the actor starts a new incarnation at its next call.
                 now = time.monotonic()
+                if self.failing_since[i] is None or isinstance(exc, ray.exceptions.RayTaskError):
+                    note(f"actor {i}: call failed ({type(exc).__name__}: {_first_line(exc)}); resubmitting")
                 self.failing_since[i] = self.failing_since[i] or now
                 if now - self.failing_since[i] > RESTART_TIMEOUT:
                     self.dead[i] = True
-                    note(f"actor {i} has failed every call for {RESTART_TIMEOUT:.0f} s: given up ({_first_line(exc)})")
-                    continue
-                note(f"actor {i}: call lost ({type(exc).__name__}: {_first_line(exc)}); resubmitting")
+                    self.retries.pop(i, None)
+                    note(f"actor {i} has failed every call for {RESTART_TIMEOUT:.0f} s: given up")
+                elif not self.dead[i]:
+                    when, calls = self.retries.get(i, (now + RETRY_DELAY, 0))
+                    self.retries[i] = (when, calls + 1)
+                continue
             self._submit(i, episode_bases[i])
         return got
 
@@ -855,7 +939,7 @@ def train_distributed(
             _RayPool(cfg, server_args, max_restarts, ray_address, actor_cpus) if use_ray else _LocalPool(cfg, server_args, max_restarts, n_params)
         )
         pool.publish(_flat_weights(q), state.updates, epsilon())
-        pool.start(list(state.episodes_by_actor))
+        pool.start(list(state.episodes_by_actor), note)
         last_data = time.monotonic()
         last_checkpoint_step = state.global_step
         while True:

@@ -131,6 +131,23 @@ def test_stream_replay_samples_every_stream_and_keeps_the_bytes_per_transition()
     assert counts[2] == 0 and counts[0] / counts[1] == pytest.approx(2.0, rel=0.1)
 
 
+def test_shared_weights_hold_no_lock_an_actor_could_die_with():
+    """The local actors read weights through a seqlock: a torn read is retried, and a
+    writer that never finishes (a learner killed mid-write) leaves the reader its old weights."""
+    import multiprocessing as mp
+
+    from agent_client.distributed import _Shared
+
+    shared = _Shared(mp.get_context("spawn"), 5)
+    assert shared.read() is not None and shared.read()[1] == -1
+    shared.write(np.arange(5, dtype=np.float32), 7)
+    flat, version = shared.read()
+    assert version == 7 and flat.tolist() == [0, 1, 2, 3, 4]
+    shared.seq.value += 1  # a write that never ends
+    t0 = time.monotonic()
+    assert shared.read() is None and time.monotonic() - t0 < 5
+
+
 def test_actor_episodes_are_a_function_of_seed_and_index():
     """The same (run seed, actor) plays the same episodes; another actor plays others;
     a restarted actor continues its sequence at the episode it is told."""
@@ -190,17 +207,22 @@ def test_servers_2_trains_without_ray_and_ray_flag_says_how_to_install(tmp_path,
 
 def test_a_killed_local_actor_is_restarted_and_training_goes_on(tmp_path):
     killed: list[int] = []
+    back: list[int] = []
 
     def kill_once(step, i, batch):
         if i == 0 and step >= 150 and not killed:
             killed.append(batch["pid"])
             os.kill(batch["pid"], signal.SIGKILL)  # no clean-up runs in the actor
+        elif i == 0 and killed and batch["pid"] != killed[0]:
+            back.append(step)
+        elif i == 1 and killed and not back:
+            time.sleep(0.3)  # slow the learner so that the run lasts until actor 0 is back
 
     cfg = Config(**{**SMALL.__dict__, "total_steps": 1200})
     t0 = time.monotonic()
     summary = train_distributed(cfg, tmp_path / "run", progress=False, on_batch=kill_once)
     print(f"kill test: {time.monotonic() - t0:.1f} s, {summary['transitions_by_actor']}, restarts {summary['restarts_by_actor']}")
-    assert killed and summary["steps"] == 1200
+    assert killed and back and summary["steps"] == 1200
     assert summary["restarts_by_actor"] == [1, 0]
     assert len(summary["actor_pids"]) == 3 and killed[0] in summary["actor_pids"]
     rows = list(csv.DictReader(open(tmp_path / "run" / "scalars.csv")))

@@ -1,0 +1,169 @@
+"""`vacc train --ray --servers K`: simulator servers and their actors as Ray actors (issue #10).
+
+Ray is in the `dev` extra, so these run in `make test`; they are skipped only where
+Ray cannot be imported.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from agent_client.ddqn import Config
+from agent_client.distributed import train_distributed
+
+ray = pytest.importorskip("ray")
+
+SMALL = Config(
+    total_steps=300, learning_starts=100, train_every=8, batch_size=8, buffer_size=1000, exploration_steps=200,
+    target_sync_every=80, episode_seconds=3.0, checkpoint_every=10**6, eval_every=0, eval_trajectories=(),
+    log_every=50, servers=2, actor_batch=20, weight_sync_every=5, seed=6,
+)  # fmt: skip
+
+
+def _servers_of(pids) -> list[int]:
+    """Simulator servers spawned by any of ``pids`` (they carry --parent-pid)."""
+    marks = {f"--parent-pid {p} " for p in pids}
+    found = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            if "sim_server" in cmd and any(m in cmd + " " for m in marks):
+                found.append(int(d.name))
+    return found
+
+
+def _assert_no_servers_left(actor_pids, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while _servers_of(actor_pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _servers_of(actor_pids) == [], "simulator servers left behind"
+
+
+def _descendants(root: int) -> set[int]:
+    procs = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                procs[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+    found, frontier = set(), {root}
+    while frontier:
+        frontier = {pid for pid, ppid in procs.items() if ppid in frontier} - found
+        found |= frontier
+    return found
+
+
+def _alive(pids) -> list[int]:
+    alive = []
+    for p in pids:
+        try:
+            if Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                alive.append(p)
+        except OSError:
+            pass
+    return alive
+
+
+def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
+    """Runs first, before this module starts its own Ray: `vacc train --ray` starts one."""
+    out = tmp_path / "run"
+    args = [
+        "train", "--reward", "gap", "--steps", "100000", "--learning-starts", "100", "--batch-size", "8",
+        "--buffer-size", "1000", "--episode-seconds", "3", "--eval-every", "0", "--log-every", "20",
+        "--quiet", "--servers", "2", "--ray", "--out", str(out),
+    ]  # fmt: skip
+    with open(tmp_path / "stderr.txt", "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        deadline = time.monotonic() + 50
+        while time.monotonic() < deadline:  # until both actors deliver
+            rows = list(csv.DictReader(open(out / "scalars.csv"))) if (out / "scalars.csv").exists() else []
+            if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
+                break
+            time.sleep(0.3)
+        tree = _descendants(proc.pid)
+        servers = [p for p in tree if "sim_server" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
+        assert len(servers) == 2, (tree, (tmp_path / "stderr.txt").read_text()[-2000:])
+        proc.terminate()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
+    deadline = time.monotonic() + 20
+    while _alive(tree) and time.monotonic() < deadline:
+        time.sleep(0.3)
+    assert _alive(tree) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
+    assert "Traceback" not in stderr and "SIGTERM received" not in stderr, stderr[-2000:]
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A local Ray instance of 2 CPUs, as the issue asks; shut down after the module."""
+    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200 * 2**20, log_to_driver=False)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def test_ray_two_servers_train_and_both_actors_deliver(local_ray, tmp_path):
+    t0 = time.monotonic()
+    summary = train_distributed(SMALL, tmp_path / "run", progress=False, use_ray=True)
+    print(f"ray, 2 servers, 300 steps: {time.monotonic() - t0:.1f} s, {summary['transitions_by_actor']}")
+    assert summary["backend"] == "ray" and summary["steps"] == 300
+    assert all(n > 0 for n in summary["transitions_by_actor"]) and sum(summary["transitions_by_actor"]) == 300
+    assert summary["restarts_by_actor"] == [0, 0] and len(summary["actor_pids"]) == 2
+    assert summary["updates"] == 300 // 8 - 100 // 8
+    assert os.getpid() not in summary["actor_pids"]  # the actors ran in Ray's workers
+    names = {r["name"] for r in csv.DictReader(open(tmp_path / "run" / "scalars.csv"))}
+    assert {"charts/transitions/actor-0", "charts/transitions/actor-1", "charts/actor_restarts", "losses/td_loss"} <= names
+    assert (tmp_path / "run" / "latest.pt").is_file()
+    assert ray.is_initialized()  # a Ray instance it did not start is left running
+    _assert_no_servers_left(summary["actor_pids"])
+
+
+def test_ray_killed_actor_is_restarted_and_training_goes_on(local_ray, tmp_path):
+    killed: list[int] = []
+    back: list[int] = []
+
+    def kill_once(step, i, batch):
+        if i == 1 and step >= 150 and not killed:
+            killed.append(batch["pid"])
+            os.kill(batch["pid"], signal.SIGKILL)  # the actor's worker process, as a crash would
+        elif i == 1 and killed and batch["pid"] != killed[0]:
+            back.append(step)
+        elif i == 0 and killed and not back:
+            time.sleep(0.3)  # slow the learner so that the run lasts until Ray has brought actor 1 back
+
+    cfg = Config(**{**SMALL.__dict__, "total_steps": 1200})
+    t0 = time.monotonic()
+    summary = train_distributed(cfg, tmp_path / "run", progress=False, use_ray=True, on_batch=kill_once)
+    print(f"ray kill test: {time.monotonic() - t0:.1f} s, {summary['transitions_by_actor']}, restarts {summary['restarts_by_actor']}")
+    assert killed and back and summary["steps"] == 1200
+    assert summary["restarts_by_actor"] == [0, 1]
+    assert len(summary["actor_pids"]) == 3 and killed[0] in summary["actor_pids"]
+    rows = list(csv.DictReader(open(tmp_path / "run" / "scalars.csv")))
+    assert max(float(r["value"]) for r in rows if r["name"] == "charts/actor_restarts") == 1
+    _assert_no_servers_left(summary["actor_pids"])
+
+
+def test_ray_refuses_more_actors_than_the_local_instance_has_cpus(local_ray, tmp_path):
+    from agent_client.errors import ClientError
+
+    with pytest.raises(ClientError, match="4 actors x 1 CPU need 4 CPUs; the Ray cluster has 2"):
+        train_distributed(Config(**{**SMALL.__dict__, "servers": 4}), tmp_path / "run", progress=False, use_ray=True)
+    assert ray.is_initialized()
