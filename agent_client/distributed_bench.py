@@ -1,0 +1,130 @@
+"""Scaling figures of the multi-server trainer (:mod:`agent_client.distributed`).
+
+* environment steps/s into one learner against K = 1, 2, 4 actors (each with its own
+  simulator server), learning off, so that the figure is the acting side's; ε = 0.05,
+  so that actors run their forward pass as a trained policy does;
+* the same K = 1 stream in-process (:func:`agent_client.ddqn.train`) as the reference;
+* optionally with learning on (one batch-32 update per 8 steps), where the learner limits;
+* the learner's cost per received transition (replay insert) and per update, which
+  bound a 100-node run (see docs/benchmarks.md).
+
+The K values are interleaved over the repetitions so that a change in the machine's
+load hits every K alike; read the ratios.
+
+    python -m agent_client.distributed_bench [--ks 1,2,4] [--steps 1500] [--reps 2] [--ray] [--learning]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from agent_client.ddqn import Config, QNetwork, dqn_update, train
+from agent_client.distributed import StreamReplay, train_distributed
+from agent_client.preprocess import FRAME_H, FRAME_W
+
+__all__ = ["acting_rate", "learner_costs", "run"]
+
+
+def _cfg(k: int, steps: int, learning: bool) -> Config:
+    return Config(
+        total_steps=steps, servers=k, start_e=0.05, end_e=0.05, learning_starts=(200 if learning else steps),
+        train_every=8, batch_size=32, buffer_size=max(2 * steps, 1000), eval_trajectories=(), eval_every=0,
+        checkpoint_every=10**9, episode_seconds=60.0, log_every=10**9,
+    )  # fmt: skip
+
+
+def acting_rate(k: int, steps: int, learning: bool = False, use_ray: bool = False, actor_cpus: float = 1.0) -> dict[str, Any]:
+    """Env steps/s reaching one learner from ``k`` actors, measured from the first batch on."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        s = train_distributed(_cfg(k, steps, learning), tmp, progress=False, use_ray=use_ray, actor_cpus=actor_cpus)
+        wall = time.perf_counter() - t0
+    return {
+        "k": k, "steps": s["steps"], "env_steps_per_s": s["env_steps_per_s"], "wall_s": wall,
+        "transitions_by_actor": s["transitions_by_actor"], "load": os.getloadavg()[0],
+    }  # fmt: skip
+
+
+def single_stream_rate(steps: int, learning: bool = False) -> dict[str, Any]:
+    """Env steps/s of :func:`agent_client.ddqn.train` (one in-process stream, no IPC)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        s = train(_cfg(1, steps, learning), tmp, progress=False)
+    return {"k": 1, "steps": s["steps"], "env_steps_per_s": s["steps"] / s["wall_s"], "wall_s": s["wall_s"], "load": os.getloadavg()[0]}
+
+
+def learner_costs(k: int = 4, batches: int = 40, updates: int = 20) -> dict[str, float]:
+    """[s] the learner's cost to store one received transition and to do one batch-32 update (CPU)."""
+    cfg = Config(servers=k, buffer_size=20_000)
+    replay = StreamReplay(cfg)
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (50, FRAME_H, FRAME_W), dtype=np.uint8)
+    t0 = time.perf_counter()
+    n = 0
+    for b in range(batches):
+        i = b % k
+        replay.start(i, frames[0], 25.0)
+        for j in range(1, 50):
+            replay.add(i, 3, 0.1, False, False, frames[j], 25.0)
+            n += 1
+    insert = (time.perf_counter() - t0) / n
+    torch.set_num_threads(1)
+    q, target = QNetwork(), QNetwork()
+    opt = torch.optim.Adam(q.parameters(), lr=1e-4)
+    times = []
+    for u in range(updates + 3):
+        b = replay.sample(32, rng, 5, 0.99)
+        t0 = time.perf_counter()
+        dqn_update(q, target, opt, b, cfg, torch.device("cpu"))
+        if u >= 3:
+            times.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    for _ in range(updates):
+        replay.sample(32, rng, 5, 0.99)
+    sample = (time.perf_counter() - t0) / updates
+    return {"insert_s_per_transition": insert, "update_s": float(np.median(times)), "sample_s": sample}
+
+
+def run(ks: tuple[int, ...] = (1, 2, 4), steps: int = 1500, reps: int = 2, learning: bool = False, use_ray: bool = False) -> dict[str, Any]:
+    """All figures; each K measured ``reps`` times, interleaved."""
+    rows: list[dict[str, Any]] = []
+    ray_ctx = None
+    if use_ray:
+        import ray
+
+        ray.init(num_cpus=max(ks), include_dashboard=False, log_to_driver=False)  # logical CPUs: one per actor
+        ray_ctx = ray
+    try:
+        for rep in range(reps):
+            if not use_ray:
+                rows.append({"rep": rep, "mode": "single-stream", **single_stream_rate(steps, learning)})
+            for k in ks:
+                rows.append({"rep": rep, "mode": "ray" if use_ray else "local", **acting_rate(k, steps, learning, use_ray)})
+                print(json.dumps(rows[-1]), flush=True)
+    finally:
+        if ray_ctx is not None:
+            ray_ctx.shutdown()
+    summary = {}
+    for mode in sorted({r["mode"] for r in rows}):
+        for k in sorted({r["k"] for r in rows if r["mode"] == mode}):
+            v = [r["env_steps_per_s"] for r in rows if r["mode"] == mode and r["k"] == k]
+            summary[f"{mode}/K={k}"] = {"median": float(np.median(v)), "all": v}
+    return {"rows": rows, "summary": summary, "learner": learner_costs(), "learning": learning, "cpus": os.cpu_count()}
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ks", default="1,2,4")
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--ray", action="store_true")
+    ap.add_argument("--learning", action="store_true")
+    a = ap.parse_args()
+    print(json.dumps(run(tuple(int(k) for k in a.ks.split(",")), a.steps, a.reps, a.learning, a.ray), indent=2))
