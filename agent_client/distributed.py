@@ -97,7 +97,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from multiprocessing.connection import wait as wait_connections
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -401,6 +401,11 @@ def _local_actor_main(
             outbox.put_nowait(None)  # ends the sender; if it is stuck in send, exit abandons it
 
 
+def _ready(conns: list[Connection], timeout: float) -> list[Connection]:
+    """The connections with a message (or EOF) within ``timeout`` [s]."""
+    return cast("list[Connection]", wait_connections(conns, timeout))
+
+
 @dataclass
 class _Local:
     """One incarnation of a local actor: its process and the reading end of its pipe."""
@@ -428,10 +433,10 @@ class _LocalPool:
         waiting = {a.conn: i for i, a in enumerate(self.actors) if a is not None}
         deadline = time.monotonic() + STARTUP_TIMEOUT
         while waiting and time.monotonic() < deadline:
-            for conn in wait_connections(list(waiting), min(1.0, max(0.0, deadline - time.monotonic()))):
-                i = waiting.pop(conn)  # type: ignore[arg-type]
+            for conn in _ready(list(waiting), min(1.0, max(0.0, deadline - time.monotonic()))):
+                i = waiting.pop(conn)
                 try:
-                    conn.recv()  # type: ignore[union-attr]
+                    conn.recv()
                 except (EOFError, OSError):
                     self._died(i, episode_bases[i], note)  # its replacement is not waited for
         if waiting:
@@ -459,10 +464,10 @@ class _LocalPool:
         """Batches that have arrived within ``timeout`` [s]; restarts actors that died."""
         conns = {a.conn: i for i, a in enumerate(self.actors) if a is not None}
         got = []
-        for conn in wait_connections(list(conns), timeout):
-            i = conns[conn]  # type: ignore[index]
+        for conn in _ready(list(conns), timeout):
+            i = conns[conn]
             try:
-                msg = conn.recv()  # type: ignore[union-attr]
+                msg = conn.recv()
             except (EOFError, OSError):
                 self._died(i, episode_bases[i], note)
                 continue
@@ -606,8 +611,8 @@ class _RayPool:
                 now = time.monotonic()
                 if self.failing_since[i] is None or isinstance(exc, ray.exceptions.RayTaskError):
                     note(f"actor {i}: call failed ({type(exc).__name__}: {_first_line(exc)}); resubmitting")
-                self.failing_since[i] = self.failing_since[i] or now
-                if now - self.failing_since[i] > RESTART_TIMEOUT:
+                since = self.failing_since[i] = self.failing_since[i] or now
+                if now - since > RESTART_TIMEOUT:
                     self.dead[i] = True
                     self.retries.pop(i, None)
                     note(f"actor {i} has failed every call for {RESTART_TIMEOUT:.0f} s: given up")

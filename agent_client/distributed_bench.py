@@ -68,8 +68,8 @@ def learner_costs(k: int = 4, batches: int = 40, updates: int = 20) -> dict[str,
     frames = rng.integers(0, 256, (50, FRAME_H, FRAME_W), dtype=np.uint8)
     t0 = time.perf_counter()
     n = 0
-    for b in range(batches):
-        i = b % k
+    for n_batch in range(batches):
+        i = n_batch % k
         replay.start(i, frames[0], 25.0)
         for j in range(1, 50):
             replay.add(i, 3, 0.1, False, False, frames[j], 25.0)
