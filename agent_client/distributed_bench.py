@@ -41,16 +41,53 @@ def _cfg(k: int, steps: int, learning: bool) -> Config:
     )  # fmt: skip
 
 
+def _tree_cpu_s(root: int) -> float:
+    """[s] user + system CPU time of every live descendant of ``root`` (Linux /proc)."""
+    procs: dict[int, tuple[int, float]] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            procs[int(d)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / tick)
+    found, frontier = set(), {root}
+    while frontier:
+        frontier = {pid for pid, (ppid, _) in procs.items() if ppid in frontier} - found
+        found |= frontier
+    return sum(procs[p][1] for p in found)
+
+
 def acting_rate(k: int, steps: int, learning: bool = False, use_ray: bool = False, actor_cpus: float = 1.0) -> dict[str, Any]:
-    """Env steps/s reaching one learner from ``k`` actors, measured from the first batch on."""
+    """Env steps/s reaching one learner from ``k`` actors, measured from the first batch on.
+
+    Also the CPU seconds per env step of every process of the run together (learner,
+    actors, servers; with Ray, its daemons too, as :func:`run` starts Ray here),
+    between the first batch and 90 % of the run (start-up and shut-down excluded),
+    read from /proc.
+    """
+    marks: list[tuple[int, float, float]] = []  # (step, wall, cpu)
+
+    def on_batch(step: int, i: int, batch: dict[str, Any]) -> None:
+        if not marks or (len(marks) == 1 and step >= 0.9 * steps):
+            marks.append((step, time.perf_counter(), _tree_cpu_s(os.getpid()) + time.process_time()))
+
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        s = train_distributed(_cfg(k, steps, learning), tmp, progress=False, use_ray=use_ray, actor_cpus=actor_cpus)
+        s = train_distributed(_cfg(k, steps, learning), tmp, progress=False, use_ray=use_ray, actor_cpus=actor_cpus, on_batch=on_batch)
         wall = time.perf_counter() - t0
-    return {
+    row = {
         "k": k, "steps": s["steps"], "env_steps_per_s": s["env_steps_per_s"], "wall_s": wall,
         "transitions_by_actor": s["transitions_by_actor"], "load": os.getloadavg()[0],
     }  # fmt: skip
+    if len(marks) == 2:  # Ray: its daemons and workers are children of this process too (ray.init here)
+        (s0, t0, c0), (s1, t1, c1) = marks
+        row["window_steps_per_s"] = (s1 - s0) / (t1 - t0)
+        row["cpu_ms_per_step"] = 1e3 * (c1 - c0) / (s1 - s0)
+        row["cores_used"] = (c1 - c0) / (t1 - t0)
+    return row
 
 
 def single_stream_rate(steps: int, learning: bool = False) -> dict[str, Any]:
@@ -60,36 +97,47 @@ def single_stream_rate(steps: int, learning: bool = False) -> dict[str, Any]:
     return {"k": 1, "steps": s["steps"], "env_steps_per_s": s["steps"] / s["wall_s"], "wall_s": s["wall_s"], "load": os.getloadavg()[0]}
 
 
-def learner_costs(k: int = 4, batches: int = 40, updates: int = 20) -> dict[str, float]:
-    """[s] the learner's cost to store one received transition and to do one batch-32 update (CPU)."""
-    cfg = Config(servers=k, buffer_size=20_000)
+def learner_costs(k: int = 4, capacity: int = 8_000, updates: int = 20) -> dict[str, float]:
+    """CPU seconds (not wall: the machine is shared) the learner spends per received
+    transition (replay insert), per batch-32 5-step sample, and per batch-32 update on
+    one CPU thread. Medians over repetitions; the replay is filled once first, so
+    that page faults of fresh memory are not counted."""
+    cfg = Config(servers=k, buffer_size=capacity)
     replay = StreamReplay(cfg)
     rng = np.random.default_rng(0)
     frames = rng.integers(0, 256, (50, FRAME_H, FRAME_W), dtype=np.uint8)
-    t0 = time.perf_counter()
-    n = 0
-    for n_batch in range(batches):
-        i = n_batch % k
-        replay.start(i, frames[0], 25.0)
-        for j in range(1, 50):
-            replay.add(i, 3, 0.1, False, False, frames[j], 25.0)
-            n += 1
-    insert = (time.perf_counter() - t0) / n
-    torch.set_num_threads(1)
-    q, target = QNetwork(), QNetwork()
-    opt = torch.optim.Adam(q.parameters(), lr=1e-4)
-    times = []
-    for u in range(updates + 3):
-        b = replay.sample(32, rng, 5, 0.99)
-        t0 = time.perf_counter()
-        dqn_update(q, target, opt, b, cfg, torch.device("cpu"))
-        if u >= 3:
-            times.append(time.perf_counter() - t0)
-    t0 = time.perf_counter()
+
+    def fill(n_batches: int) -> float:
+        t0 = time.process_time()
+        for n_batch in range(n_batches):
+            i = n_batch % k
+            replay.start(i, frames[0], 25.0)
+            for j in range(1, 50):
+                replay.add(i, 3, 0.1, False, False, frames[j], 25.0)
+        return (time.process_time() - t0) / (49 * n_batches)
+
+    fill(capacity // 49 + k)  # touch every page once
+    insert = float(np.median([fill(20) for _ in range(5)]))
+    samples = []
     for _ in range(updates):
+        t0 = time.process_time()
         replay.sample(32, rng, 5, 0.99)
-    sample = (time.perf_counter() - t0) / updates
-    return {"insert_s_per_transition": insert, "update_s": float(np.median(times)), "sample_s": sample}
+        samples.append(time.process_time() - t0)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        q, target = QNetwork(), QNetwork()
+        opt = torch.optim.Adam(q.parameters(), lr=1e-4)
+        times = []
+        for u in range(updates + 3):
+            b = replay.sample(32, rng, 5, 0.99)
+            t0 = time.process_time()
+            dqn_update(q, target, opt, b, cfg, torch.device("cpu"))
+            if u >= 3:
+                times.append(time.process_time() - t0)
+    finally:
+        torch.set_num_threads(threads)
+    return {"insert_cpu_s_per_transition": insert, "sample_cpu_s": float(np.median(samples)), "update_cpu_s": float(np.median(times))}
 
 
 def run(ks: tuple[int, ...] = (1, 2, 4), steps: int = 1500, reps: int = 2, learning: bool = False, use_ray: bool = False) -> dict[str, Any]:
