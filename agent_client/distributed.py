@@ -12,7 +12,7 @@ single-stream loop whose resume is bit-exact.
     ┌────────────────────────────────────────┐ batches ┌───────────────────────────────┐
     │ sim_server on 127.0.0.1 of its node    │ ──────> │ K ReplayMemory streams        │
     │ VisionACCEnv, CPU copy of the QNetwork │         │ QNetwork (GPU if any), target │
-    │ ε-greedy; episode k seeded by (seed,i,k)│ <────── │ Adam, evaluation, checkpoints │
+    │ ε-greedy; episode k seeded (seed, i, k)│ <────── │ Adam, evaluation, checkpoints │
     └────────────────────────────────────────┘ weights └───────────────────────────────┘
                                                 every M updates
 
@@ -34,16 +34,21 @@ Decisions:
   synced on the same env-step grid. The learner does the updates it owes before it
   takes more data; actors block when their outbox is full (local: one batch queued,
   one being sent; Ray: two calls in flight), so a slow learner slows the actors
-  instead of the ratio drifting.
+  instead of the ratio drifting. At the start the learner waits (up to
+  ``STARTUP_TIMEOUT``) until every actor has its server, so none starts far behind.
 * **Weights: M and staleness.** The learner publishes its weights every
-  ``Config.weight_sync_every`` = M (20) gradient steps (local: one shared-memory
-  copy, read by an actor before each batch when its version changed; Ray: one
-  ``ray.put`` per publication, fetched by an actor at its next call). An actor
-  therefore acts with a policy at most M updates old when it starts a batch, and
-  keeps it for the batch: at most M updates + one batch (50 steps) + the batches
-  queued behind it (one or two). At ``train_every`` 8, M = 20 is 160 env steps of
-  data, against a target network that is ``target_sync_every`` (1,000-2,000) steps
-  old anyway. The measured lag is logged as ``charts/policy_lag_updates``.
+  ``Config.weight_sync_every`` = M (20) gradient steps (local: a seqlocked copy in
+  shared memory, read by an actor before each batch when its version changed; Ray:
+  one ``ray.put`` per publication, fetched by an actor with its next call). A batch
+  is acted with weights at most M - 1 updates old when it starts, and then waits
+  behind at most every actor's outstanding batches (D + 1 = 3 each: one being
+  collected, two queued), so the lag in updates when it is stored is at most
+  M + K (D + 1) actor_batch / train_every (39 at K = 1, 58 at K = 2 with the
+  defaults). The bound holds when the learner is the bottleneck and every queue is
+  full; with a faster learner the queues are empty and the lag is about half of
+  M + K actor_batch / train_every. For scale: the target network is
+  ``target_sync_every`` (1,000-2,000 env steps, 125-250 updates) old anyway. The
+  measured mean lag is logged as ``charts/policy_lag_updates``.
 * **ε** follows the single stream's schedule at the learner's global step; actors
   read it with the weights (local) or receive it with each call (Ray).
 * **Seeding.** Episode k of actor i draws its episode seed, its ε draws and its
@@ -69,8 +74,9 @@ Decisions:
 * **Processes.** Every actor owns its server (``--parent-pid``: it exits when its
   actor dies, even by ``kill -9``). Local actors run in their own process group (a
   terminal's Ctrl-C reaches the learner only, which then stops them in order), watch
-  for the learner's death, and are stopped at exit with an event, then SIGTERM, then
-  SIGKILL. Ray actors are asked to close, then killed; a Ray instance that
+  for the learner's death, and are stopped at exit with a shared flag, then SIGTERM,
+  then SIGKILL. They share no lock with the learner (an actor killed holding one
+  would block the learner forever). Ray actors are asked to close, then killed; a Ray instance that
   :func:`train_distributed` started is shut down.
 
 Run folder: as :func:`agent_client.ddqn.train`, with the replay in one file per
