@@ -266,7 +266,7 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     with open(tmp_path / "stderr.txt", "w") as err:
         proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # until both actors deliver
             rows = list(csv.DictReader(open(out / "scalars.csv"))) if (out / "scalars.csv").exists() else []
             if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
