@@ -528,7 +528,9 @@ class _RayPool:
         self.cfg = cfg
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
-            ray.init(address=address, include_dashboard=False)
+            # A local instance listens on loopback only; a cluster address is the user's call.
+            local = address is None and not os.environ.get("RAY_ADDRESS")
+            ray.init(address=address, include_dashboard=False, **({"_node_ip_address": "127.0.0.1"} if local else {}))
         try:
             cpus = ray.cluster_resources().get("CPU", 0.0)
             need = cfg.servers * actor_cpus

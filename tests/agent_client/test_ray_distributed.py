@@ -113,7 +113,7 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
 @pytest.fixture(scope="module")
 def local_ray():
     """A local Ray instance of 2 CPUs, as the issue asks; shut down after the module."""
-    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200 * 2**20, log_to_driver=False)
+    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200 * 2**20, log_to_driver=False, _node_ip_address="127.0.0.1")
     try:
         yield ray
     finally:
