@@ -747,6 +747,50 @@ class Progress:
             sys.stderr.write("\n")
 
 
+def init_from_policy(q: QNetwork, target: QNetwork, cfg: Config) -> None:
+    """Start both networks from ``cfg.init_from`` (fine-tuning), if set.
+
+    Raises:
+        InputFileError: a bad checkpoint, or one trained on other frames.
+    """
+    if cfg.init_from is None:
+        return
+    init_q, init_cfg = load_policy(cfg.init_from)
+    if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
+        raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
+    q.load_state_dict(init_q.state_dict())
+    target.load_state_dict(init_q.state_dict())
+
+
+def check_resume_config(ckpt: dict[str, Any], cfg: Config, path: Path) -> None:
+    """A resumed run must have the saved run's settings, but for ``total_steps``.
+
+    Raises:
+        InputFileError: naming every setting that differs.
+    """
+    saved = _config_from(ckpt["config"], path)
+    if dataclasses.replace(saved, total_steps=cfg.total_steps) != cfg:
+        diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k != "total_steps" and v != getattr(cfg, k)}
+        raise InputFileError(f"{path}: the run was trained with other settings; differences (saved, given): {diff}")
+
+
+def log_evaluation(log: ScalarLog, results: list[dict[str, Any]], step: int) -> float:
+    """Write an evaluation's ``eval/`` scalars; return its score (lower is better).
+
+    Score: fewest failures (a collision, or losing the lead past 300 m), then the
+    worst trajectory's RMSE (the target is per trajectory).
+    """
+    rmse = [r["gap_rmse_m"] for r in results]
+    for r in results:
+        log.add(f"eval/gap_rmse_m/{r['trajectory']}", r["gap_rmse_m"], step)
+    log.add("eval/gap_rmse_m", max(rmse), step)
+    log.add("eval/gap_rmse_mean_m", float(np.mean(rmse)), step)
+    log.add("eval/collisions", sum(r["collision"] for r in results), step)
+    failures = sum(r["collision"] or r["reason"] not in ("end", "") for r in results)
+    log.add("eval/failures", failures, step)
+    return 1e6 * failures + max(rmse)
+
+
 # ------------------------------------------------------------------------- training
 
 
@@ -837,20 +881,13 @@ def train(
     memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride)
     state = _State()
 
-    if cfg.init_from is not None and not resume:
-        init_q, init_cfg = load_policy(cfg.init_from)
-        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
-            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
-        q.load_state_dict(init_q.state_dict())
-        target.load_state_dict(init_q.state_dict())
+    if not resume:
+        init_from_policy(q, target, cfg)
     if resume:
         ckpt = _read_checkpoint(latest)
         if ckpt.get("kind") != "training":
             raise InputFileError(f"{latest}: a policy-only checkpoint cannot be resumed")
-        saved = _config_from(ckpt["config"], latest)
-        if dataclasses.replace(saved, total_steps=cfg.total_steps) != cfg:
-            diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k != "total_steps" and v != getattr(cfg, k)}
-            raise InputFileError(f"{latest}: the run was trained with other settings; differences (saved, given): {diff}")
+        check_resume_config(ckpt, cfg, latest)
         _load_weights(q, ckpt["model"], latest)
         _load_weights(target, ckpt["target"], latest, "target")
         try:
@@ -893,18 +930,7 @@ def train(
         q.eval()
         last_eval = evaluate(q, eval_env, cfg.eval_trajectories)
         q.train()
-        rmse = [r["gap_rmse_m"] for r in last_eval]
-        collisions = sum(r["collision"] for r in last_eval)
-        for r in last_eval:
-            log.add(f"eval/gap_rmse_m/{r['trajectory']}", r["gap_rmse_m"], state.global_step)
-        log.add("eval/gap_rmse_m", max(rmse), state.global_step)
-        log.add("eval/gap_rmse_mean_m", float(np.mean(rmse)), state.global_step)
-        log.add("eval/collisions", collisions, state.global_step)
-        # Best = fewest failures (a collision, or losing the lead past 300 m), then the
-        # worst trajectory's RMSE (the target is per trajectory).
-        failures = sum(r["collision"] or r["reason"] not in ("end", "") for r in last_eval)
-        log.add("eval/failures", failures, state.global_step)
-        score = 1e6 * failures + max(rmse)
+        score = log_evaluation(log, last_eval, state.global_step)
         if score < state.best_score:
             state.best_score = score
             save_policy(q, cfg, best_path, {"step": state.global_step, "eval": last_eval})

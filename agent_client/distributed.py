@@ -121,13 +121,14 @@ from agent_client.ddqn import (
     ScalarLog,
     _atomic_save,
     _config_dict,
-    _config_from,
     _load_weights,
     _read_checkpoint,
+    check_resume_config,
     dqn_update,
     evaluate,
+    init_from_policy,
     linear_schedule,
-    load_policy,
+    log_evaluation,
     save_policy,
 )
 from agent_client.errors import ClientError, InputFileError
@@ -799,20 +800,13 @@ def train_distributed(
     replay = StreamReplay(cfg)
     state = _DState(episodes_by_actor=[0] * K, transitions_by_actor=[0] * K, restarts_by_actor=[0] * K)
 
-    if cfg.init_from is not None and not resume:
-        init_q, init_cfg = load_policy(cfg.init_from)
-        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
-            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
-        q.load_state_dict(init_q.state_dict())
-        target.load_state_dict(init_q.state_dict())
+    if not resume:
+        init_from_policy(q, target, cfg)
     if resume:
         ckpt = _read_checkpoint(latest)
         if ckpt.get("kind") != "training" or ckpt.get("trainer") != "distributed":
             raise InputFileError(f"{latest}: not a checkpoint of a multi-server run (resume it without --servers/--ray)")
-        saved = _config_from(ckpt["config"], latest)
-        if dataclasses.replace(saved, total_steps=cfg.total_steps) != cfg:
-            diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k != "total_steps" and v != getattr(cfg, k)}
-            raise InputFileError(f"{latest}: the run was trained with other settings; differences (saved, given): {diff}")
+        check_resume_config(ckpt, cfg, latest)
         _load_weights(q, ckpt["model"], latest)
         _load_weights(target, ckpt["target"], latest, "target")
         try:
@@ -861,15 +855,7 @@ def train_distributed(
         q.eval()
         last_eval = evaluate(q, eval_env, cfg.eval_trajectories)
         q.train()
-        rmse = [r["gap_rmse_m"] for r in last_eval]
-        for r in last_eval:
-            log.add(f"eval/gap_rmse_m/{r['trajectory']}", r["gap_rmse_m"], state.global_step)
-        log.add("eval/gap_rmse_m", max(rmse), state.global_step)
-        log.add("eval/gap_rmse_mean_m", float(np.mean(rmse)), state.global_step)
-        log.add("eval/collisions", sum(r["collision"] for r in last_eval), state.global_step)
-        failures = sum(r["collision"] or r["reason"] not in ("end", "") for r in last_eval)
-        log.add("eval/failures", failures, state.global_step)
-        score = 1e6 * failures + max(rmse)  # as ddqn.train: fewest failures, then the worst RMSE
+        score = log_evaluation(log, last_eval, state.global_step)
         if score < state.best_score:
             state.best_score = score
             save_policy(q, cfg, best_path, {"step": state.global_step, "eval": last_eval})
