@@ -124,8 +124,10 @@ def train(
     distributed = use_ray or servers > 1
     if resume and not (Path(out) / "latest.pt").exists():
         raise click.UsageError(f"--resume: {Path(out) / 'latest.pt'} does not exist")
-    # A plain `kill` should still reap the spawned servers (the finally blocks run).
+    # A plain `kill` or Ctrl-C reaps the spawned servers and actors (the finally blocks
+    # run); both leave through SystemExit, one shutdown path.
     signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGINT, _terminate)
     try:
         if distributed:
             from agent_client.distributed import import_ray, train_distributed

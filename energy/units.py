@@ -6,6 +6,8 @@ and when reporting.
 
 from __future__ import annotations
 
+import math
+
 from typing import TypeVar
 
 import numpy as np
@@ -100,5 +102,6 @@ def wh_per_mi_to_mpge(wh_per_mi: float) -> float:
 
 
 def mpg_from_co2_g_per_mi(co2_g_per_mi: float) -> float:
-    """Fuel economy from tailpipe CO2, with the EPA's 8887 g CO2 per gallon."""
-    return G_CO2_PER_GALLON / co2_g_per_mi
+    """Fuel economy from tailpipe CO2, with the EPA's 8887 g CO2 per gallon (inf for none:
+    a short run spent braking or coasting burns nothing)."""
+    return G_CO2_PER_GALLON / co2_g_per_mi if co2_g_per_mi > 0 else math.inf

@@ -39,3 +39,10 @@ def test_label_figures() -> None:
     # 2012 Leaf label: 34 kWh/100 mi is 99 MPGe combined
     assert units.wh_per_mi_to_mpge(340.0) == pytest.approx(99.1, abs=0.1)
     assert units.mpg_from_co2_g_per_mi(8887.0 / 50.0) == pytest.approx(50.0)
+
+
+def test_mpg_of_a_run_that_burns_nothing_is_infinite():
+    """A short run spent braking or coasting has zero CO2; its economy is inf, not a crash."""
+    import math
+
+    assert units.mpg_from_co2_g_per_mi(0.0) == math.inf
