@@ -8,12 +8,18 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from proctree import (
+    assert_no_servers_left,
+    descendants,
+    servers_of,
+    wait_gone,
+    wait_until_both_actors_deliver,
+)
 
 from agent_client.ddqn import Config, ReplayMemory, train
 from agent_client.distributed import RAY_INSTALL_HINT, StreamActor, StreamReplay, train_distributed
@@ -35,58 +41,9 @@ CLI_ARGS = [
 ]  # fmt: skip
 
 
-def _procs() -> dict[int, tuple[int, str]]:
-    """pid -> (parent pid, command line) of every process."""
-    out = {}
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
-                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
-            out[int(d.name)] = (ppid, cmd)
-    return out
-
-
-def _servers_of(pids) -> list[int]:
-    """Simulator servers spawned by any of ``pids`` (they carry --parent-pid)."""
-    marks = {f"--parent-pid {p} " for p in pids}
-    return [pid for pid, (_, cmd) in _procs().items() if "sim_server" in cmd and any(m in cmd + " " for m in marks)]
-
-
-def _descendants(root: int) -> set[int]:
-    procs = _procs()
-    found, frontier = set(), {root}
-    while frontier:
-        frontier = {pid for pid, (ppid, _) in procs.items() if ppid in frontier} - found
-        found |= frontier
-    return found
-
-
-def _wait_gone(pids, timeout: float = 15.0) -> list[int]:
-    """Wait until none of ``pids`` is alive; return those still alive."""
-    deadline = time.monotonic() + timeout
-    while True:
-        alive = [p for p in pids if Path(f"/proc/{p}").exists() and "(Z)" not in _state(p)]
-        if not alive or time.monotonic() > deadline:
-            return alive
-        time.sleep(0.2)
-
-
-def _state(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0].join("()")
-    except OSError:
-        return "(gone)"
-
-
 def _assert_no_orphans(actor_pids) -> None:
-    assert _wait_gone(list(actor_pids)) == [], "actor processes left behind"
-    deadline = time.monotonic() + 15
-    while _servers_of(actor_pids) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert _servers_of(actor_pids) == [], "simulator servers left behind"
+    assert wait_gone(list(actor_pids)) == [], "actor processes left behind"
+    assert_no_servers_left(actor_pids)
 
 
 def _batch(rng, starts, n_frames) -> dict:
@@ -266,14 +223,9 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     with open(tmp_path / "stderr.txt", "w") as err:
         proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:  # until both actors deliver
-            rows = list(csv.DictReader(open(out / "scalars.csv"))) if (out / "scalars.csv").exists() else []
-            if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
-                break
-            time.sleep(0.3)
-        tree = _descendants(proc.pid)
-        assert len(_servers_of(tree)) == 2, tree
+        wait_until_both_actors_deliver(out)
+        tree = descendants(proc.pid)
+        assert len(servers_of(tree)) == 2, tree
         os.kill(proc.pid, sig)
         proc.wait(timeout=60)
     finally:
@@ -281,6 +233,6 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
             proc.kill()
             proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
-    assert _wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
+    assert wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
     if sig != signal.SIGKILL:
         assert "Traceback" not in stderr, stderr[-2000:]

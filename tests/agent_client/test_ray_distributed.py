@@ -12,9 +12,15 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
+from proctree import (
+    assert_no_servers_left,
+    descendants,
+    procs,
+    wait_gone,
+    wait_until_both_actors_deliver,
+)
 
 from agent_client.ddqn import Config
 from agent_client.distributed import train_distributed
@@ -28,54 +34,6 @@ SMALL = Config(
 )  # fmt: skip
 
 
-def _servers_of(pids) -> list[int]:
-    """Simulator servers spawned by any of ``pids`` (they carry --parent-pid)."""
-    marks = {f"--parent-pid {p} " for p in pids}
-    found = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            except OSError:
-                continue
-            if "sim_server" in cmd and any(m in cmd + " " for m in marks):
-                found.append(int(d.name))
-    return found
-
-
-def _assert_no_servers_left(actor_pids, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while _servers_of(actor_pids) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert _servers_of(actor_pids) == [], "simulator servers left behind"
-
-
-def _descendants(root: int) -> set[int]:
-    procs = {}
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                procs[int(d.name)] = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, ValueError, IndexError):
-                continue
-    found, frontier = set(), {root}
-    while frontier:
-        frontier = {pid for pid, ppid in procs.items() if ppid in frontier} - found
-        found |= frontier
-    return found
-
-
-def _alive(pids) -> list[int]:
-    alive = []
-    for p in pids:
-        try:
-            if Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
-                alive.append(p)
-        except OSError:
-            pass
-    return alive
-
-
 def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
     """Runs first, before this module starts its own Ray: `vacc train --ray` starts one."""
     out = tmp_path / "run"
@@ -87,14 +45,9 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
     with open(tmp_path / "stderr.txt", "w") as err:
         proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:  # until both actors deliver
-            rows = list(csv.DictReader(open(out / "scalars.csv"))) if (out / "scalars.csv").exists() else []
-            if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
-                break
-            time.sleep(0.3)
-        tree = _descendants(proc.pid)
-        servers = [p for p in tree if "sim_server" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
+        wait_until_both_actors_deliver(out)
+        tree = descendants(proc.pid)
+        servers = [p for p in tree if "sim_server" in procs().get(p, (0, ""))[1]]
         assert len(servers) == 2, (tree, (tmp_path / "stderr.txt").read_text()[-2000:])
         proc.terminate()
         proc.wait(timeout=60)
@@ -103,10 +56,7 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
             proc.kill()
             proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
-    deadline = time.monotonic() + 20
-    while _alive(tree) and time.monotonic() < deadline:
-        time.sleep(0.3)
-    assert _alive(tree) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
+    assert wait_gone(tree, timeout=20) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
     assert "Traceback" not in stderr and "SIGTERM received" not in stderr, stderr[-2000:]
 
 
@@ -133,7 +83,7 @@ def test_ray_two_servers_train_and_both_actors_deliver(local_ray, tmp_path):
     assert {"charts/transitions/actor-0", "charts/transitions/actor-1", "charts/actor_restarts", "losses/td_loss"} <= names
     assert (tmp_path / "run" / "latest.pt").is_file()
     assert ray.is_initialized()  # a Ray instance it did not start is left running
-    _assert_no_servers_left(summary["actor_pids"])
+    assert_no_servers_left(summary["actor_pids"])
 
 
 def test_ray_killed_actor_is_restarted_and_training_goes_on(local_ray, tmp_path):
@@ -158,7 +108,7 @@ def test_ray_killed_actor_is_restarted_and_training_goes_on(local_ray, tmp_path)
     assert len(summary["actor_pids"]) == 3 and killed[0] in summary["actor_pids"]
     rows = list(csv.DictReader(open(tmp_path / "run" / "scalars.csv")))
     assert max(float(r["value"]) for r in rows if r["name"] == "charts/actor_restarts") == 1
-    _assert_no_servers_left(summary["actor_pids"])
+    assert_no_servers_left(summary["actor_pids"])
 
 
 def test_ray_refuses_more_actors_than_the_local_instance_has_cpus(local_ray, tmp_path):

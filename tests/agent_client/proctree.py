@@ -1,0 +1,71 @@
+"""Process-tree helpers for the multi-server tests: who spawned what, and is it gone."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+
+def procs() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, command line) of every process."""
+    out = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                cmd = (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, ValueError, IndexError):
+                continue
+            out[int(d.name)] = (ppid, cmd)
+    return out
+
+
+def servers_of(pids) -> list[int]:
+    """Simulator servers spawned by any of ``pids`` (they carry --parent-pid)."""
+    marks = {f"--parent-pid {p} " for p in pids}
+    return [pid for pid, (_, cmd) in procs().items() if "sim_server" in cmd and any(m in cmd + " " for m in marks)]
+
+
+def descendants(root: int) -> set[int]:
+    table = procs()
+    found, frontier = set(), {root}
+    while frontier:
+        frontier = {pid for pid, (ppid, _) in table.items() if ppid in frontier} - found
+        found |= frontier
+    return found
+
+
+def state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0].join("()")
+    except OSError:
+        return "(gone)"
+
+
+def wait_gone(pids, timeout: float = 15.0) -> list[int]:
+    """Wait until none of ``pids`` is alive (zombies count as gone); return those still alive."""
+    deadline = time.monotonic() + timeout
+    while True:
+        alive = [p for p in pids if Path(f"/proc/{p}").exists() and "(Z)" not in state(p)]
+        if not alive or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.2)
+
+
+def assert_no_servers_left(actor_pids, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while servers_of(actor_pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert servers_of(actor_pids) == [], "simulator servers left behind"
+
+
+def wait_until_both_actors_deliver(run_dir: Path, timeout: float = 120.0) -> None:
+    """Poll ``run_dir/scalars.csv`` until actors 0 and 1 have each delivered a batch."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        path = run_dir / "scalars.csv"
+        rows = list(csv.DictReader(open(path))) if path.exists() else []
+        if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
+            return
+        time.sleep(0.3)
