@@ -59,6 +59,7 @@ __all__ = [
     "save_policy",
     "load_policy",
     "DDQNController",
+    "eval_episode",
     "evaluate",
     "train",
     "CHECKPOINT_FORMAT",
@@ -135,7 +136,9 @@ class Config:
     eval_every: int = 25_000
     """Steps between evaluations on the test trajectories (0: only at the end)."""
     eval_trajectories: tuple[str, ...] = ("test-1", "test-2", "test-3", "test-4")
-    """Trajectories of the periodic evaluation (seed 0, as ``vacc drive`` uses); empty: none."""
+    """Trajectories of the periodic evaluation, which picks ``best.pt``: "test-N" (seed 0,
+    as ``vacc drive`` uses) or "random:S" (a held-out selection set; :func:`eval_episode`);
+    empty: none."""
     eval_seconds: float | None = None
     """[s] evaluation episode length (None: the whole 240 s test trajectory)."""
     checkpoint_every: int = 10_000
@@ -172,6 +175,8 @@ class Config:
             raise ValueError("gamma must be in [0, 1)")
         if self.zoom not in ZOOMS:
             raise ValueError(f"zoom must be one of {ZOOMS}")
+        for name in self.eval_trajectories:
+            eval_episode(name)  # a typo fails here, not at the first evaluation hours later
 
 
 # -------------------------------------------------------------------------- network
@@ -632,24 +637,46 @@ class DDQNController:
 # ----------------------------------------------------------------------- evaluation
 
 
-def evaluate(
-    q: QNetwork, env: Any, trajectories: tuple[str, ...], seed: int = 0
-) -> list[dict[str, Any]]:
-    """Greedy episodes on test trajectories; gap RMSE against 55 m and collisions.
+TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4")
+
+
+def eval_episode(name: str) -> tuple[str, int]:
+    """An evaluation trajectory's name to (server trajectory, episode seed).
+
+    "test-N" is a test trajectory from seed 0's start, as ``vacc drive`` drives it.
+    "random:S" is the random trajectory (and start, traffic, light) of episode seed S,
+    the one ``vacc drive --trajectory random --seed S`` drives: a selection set held out
+    from the test set. Training episodes draw their seeds from the run's RNG over
+    [0, 2^31), so a small S is, in practice, never a training episode.
+
+    Raises:
+        ValueError: any other name.
+    """
+    if name in TEST_TRAJECTORIES:
+        return name, 0
+    kind, _, seed = name.partition(":")
+    if kind == "random" and seed.isdigit():
+        return "random", int(seed)
+    raise ValueError(f"evaluation trajectory {name!r} is not one of {', '.join(TEST_TRAJECTORIES)} or random:SEED (e.g. random:101)")
+
+
+def evaluate(q: QNetwork, env: Any, trajectories: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Greedy episodes; gap RMSE against 55 m and collisions.
 
     Args:
         q: the Q-network.
         env: a :class:`VisionACCEnv` of the scenario.
-        trajectories: e.g. ("test-1", ..., "test-4").
-        seed: episode seed (initial conditions), 0 as ``vacc drive`` uses.
+        trajectories: names for :func:`eval_episode`, e.g. ("test-1", ..., "test-4")
+            or ("random:101", "random:102").
 
     Returns:
-        One dict per trajectory: trajectory, gap_rmse_m, collision, steps, reason.
+        One dict per trajectory: trajectory (its name), gap_rmse_m, collision, steps, reason.
     """
     device = next(q.parameters()).device
     results = []
     for trajectory in trajectories:
-        obs, info = env.reset(options={"seed": seed, "trajectory": trajectory})
+        server_trajectory, seed = eval_episode(trajectory)
+        obs, info = env.reset(options={"seed": seed, "trajectory": server_trajectory})
         gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0
         done = False
         while not done:
@@ -762,15 +789,21 @@ def init_from_policy(q: QNetwork, target: QNetwork, cfg: Config) -> None:
     target.load_state_dict(init_q.state_dict())
 
 
+# Settings a resumed run may change: none of them touches the training RNG or the
+# learning (evaluations and checkpoints draw nothing from it), so a run resumed with
+# other values stays bit-identical to one that never stopped.
+RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
+
+
 def check_resume_config(ckpt: dict[str, Any], cfg: Config, path: Path) -> None:
-    """A resumed run must have the saved run's settings, but for ``total_steps``.
+    """A resumed run must have the saved run's settings, but for ``RESUMABLE_CHANGES``.
 
     Raises:
         InputFileError: naming every setting that differs.
     """
     saved = _config_from(ckpt["config"], path)
-    if dataclasses.replace(saved, total_steps=cfg.total_steps) != cfg:
-        diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k != "total_steps" and v != getattr(cfg, k)}
+    if dataclasses.replace(saved, **{k: getattr(cfg, k) for k in RESUMABLE_CHANGES}) != cfg:
+        diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k not in RESUMABLE_CHANGES and v != getattr(cfg, k)}
         raise InputFileError(f"{path}: the run was trained with other settings; differences (saved, given): {diff}")
 
 
@@ -923,7 +956,7 @@ def train(
         nonlocal eval_env, last_eval
         if eval_env is None:
             eval_env = VisionACCEnv(
-                scenario=cfg.scenario, trajectory=cfg.eval_trajectories[0], reward=cfg.reward,
+                scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=server_args, zoom=cfg.zoom,
             )  # fmt: skip

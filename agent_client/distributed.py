@@ -125,6 +125,7 @@ from agent_client.ddqn import (
     _read_checkpoint,
     check_resume_config,
     dqn_update,
+    eval_episode,
     evaluate,
     init_from_policy,
     linear_schedule,
@@ -848,7 +849,7 @@ def train_distributed(
         nonlocal eval_env, last_eval
         if eval_env is None:
             eval_env = VisionACCEnv(
-                scenario=cfg.scenario, trajectory=cfg.eval_trajectories[0], reward=cfg.reward,
+                scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=eval_server_args, zoom=cfg.zoom,
             )  # fmt: skip

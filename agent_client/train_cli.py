@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from agent_client.ddqn import Config
+from agent_client.ddqn import Config, eval_episode
 from agent_client.ddqn import train as run_training
 from agent_client.errors import ClientError
 
@@ -32,7 +32,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--seed", default=_D.seed, show_default=True, type=int)
 @click.option("--eval-every", default=_D.eval_every, show_default=True, type=click.IntRange(min=0), help="Steps between evaluations on test-1..4 (0: only at the end).")
 @click.option("--eval-seconds", default=None, type=float, callback=_seconds, help="Evaluation episode length [s] (default: whole trajectories).")
-@click.option("--eval-trajectories", default=",".join(_D.eval_trajectories), show_default=True, help="Comma-separated test trajectories.")
+@click.option("--eval-trajectories", default=",".join(_D.eval_trajectories), show_default=True, help="Comma-separated evaluation trajectories; they pick best.pt: test-1..test-4, or random:SEED for a selection set held out from the tests.")
 @click.option("--episode-seconds", default=_D.episode_seconds, show_default=True, type=float, callback=_seconds, help="Training episode length [s] (0: the whole 240 s trajectory).")
 @click.option("--buffer-size", default=_D.buffer_size, show_default=True, type=click.IntRange(min=100))
 @click.option("--learning-starts", default=_D.learning_starts, show_default=True, type=click.IntRange(min=0))
@@ -110,6 +110,11 @@ def train(
     trajectories = tuple(t.strip() for t in eval_trajectories.split(",") if t.strip())
     if not trajectories:
         raise click.BadParameter("give at least one trajectory", param_hint="--eval-trajectories")
+    for name in trajectories:
+        try:
+            eval_episode(name)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--eval-trajectories") from None
     cfg = Config(
         reward=reward, scenario=scenario, total_steps=steps, seed=seed, eval_every=eval_every,
         eval_seconds=eval_seconds, eval_trajectories=trajectories, episode_seconds=episode_seconds,

@@ -44,6 +44,41 @@ def test_resume_continues_exactly_as_an_uninterrupted_run(tmp_path):
     assert names(tmp_path / "whole") == names(tmp_path / "split")
 
 
+def test_resume_may_change_when_it_evaluates_saves_and_logs(tmp_path):
+    """eval_every, checkpoint_every and log_every touch neither learning nor the RNG;
+    the held-out "random:S" evaluation is the episode `vacc drive --seed S` drives."""
+    held_out = Config(**{**TINY.__dict__, "eval_trajectories": ("random:3",), "eval_seconds": 1.0})
+    train(held_out, tmp_path / "whole", progress=False)  # one evaluation, at the end
+    train(Config(**{**held_out.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
+    changed = Config(**{**held_out.__dict__, "eval_every": 40, "checkpoint_every": 45, "log_every": 10})
+    train(changed, tmp_path / "split", resume=True, progress=False)
+    a, b = _state(tmp_path / "whole"), _state(tmp_path / "split")
+    assert a["rng"]["numpy"] == b["rng"]["numpy"]
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    evals = lambda p: {int(r["step"]): float(r["value"]) for r in csv.DictReader(open(p / "scalars.csv")) if r["name"] == "eval/gap_rmse_m/random:3"}  # noqa: E731
+    whole, split = evals(tmp_path / "whole"), evals(tmp_path / "split")
+    assert list(whole) == [120] and list(split) == [60, 90, 120]  # at episode ends (30 steps each)
+    assert split[120] == whole[120]
+
+    log = tmp_path / "drive.csv"
+    args = ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "random", "--seed", "3", "--duration", "1", "--log", str(log), "--quiet"]  # fmt: skip
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    gaps = [float(r["gap"]) for r in csv.DictReader(open(log))]
+    assert float(f"{(sum((g - 55.0) ** 2 for g in gaps) / len(gaps)) ** 0.5:.6g}") == whole[120]
+
+
+def test_bad_evaluation_trajectories_fail_before_training(tmp_path):
+    for name in ("test-5", "random", "random:x", "random:-1"):
+        with pytest.raises(ValueError, match=f"{name!r}.*random:SEED"):
+            Config(eval_trajectories=(name,))
+    result = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--out", str(tmp_path / "r"), "--eval-trajectories", "test-1,tset-2"])
+    assert result.exit_code == 2
+    assert "--eval-trajectories" in result.output and "'tset-2'" in result.output
+    assert not (tmp_path / "r").exists()
+
+
 def test_resume_refuses_other_settings_and_missing_files(tmp_path):
     from agent_client.errors import InputFileError
 
