@@ -401,7 +401,7 @@ class ReplayMemory:
         with open(tmp, "wb") as f:
             np.savez(
                 f,
-                **{name: a[:n] for name, a in self._arrays().items()},
+                **{name: a[:n] for name, a in self._arrays().items()},  # type: ignore[arg-type]  # numpy stubs take ** for allow_pickle
                 meta=np.array([self.capacity, self.frame_stack, self.stack_stride, self.total, self.transitions, step], np.int64),
             )
         os.replace(tmp, path)

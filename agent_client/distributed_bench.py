@@ -53,7 +53,8 @@ def _tree_cpu_s(root: int) -> float:
             except OSError:
                 continue
             procs[int(d)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / tick)
-    found, frontier = set(), {root}
+    found: set[int] = set()
+    frontier = {root}
     while frontier:
         frontier = {pid for pid, (ppid, _) in procs.items() if ppid in frontier} - found
         found |= frontier

@@ -13,6 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 from agent_client import preprocess as pre
+from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
 from agent_client.rewards import REWARDS
 from agent_client.session import GIVE_UP, Session
@@ -110,6 +111,8 @@ class VisionACCEnv(gym.Env):
 
     def _observe(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
         image = Session.image(obs)
+        if image is None:  # the session asked for gray frames; a server that drops them is broken
+            raise FatalSessionError("the server sent an observation without a camera image")
         self._last_image = image
         return self._stacker.push(pre.preprocess(image, self.zoom), obs["v_host"])
 

@@ -7,7 +7,6 @@ and when reporting.
 from __future__ import annotations
 
 import math
-
 from typing import TypeVar
 
 import numpy as np

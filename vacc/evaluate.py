@@ -50,7 +50,7 @@ DRIVING_ROWS = [
 GAP_KEYS = {"gap_rmse_55m_m", "collisions", "ttc_min_s"}
 
 # The paper's Tables 3 and 4 (Wei et al. 2019), for comparison.
-PAPER = {
+PAPER: dict[str, dict[str, Any]] = {
     "ice": {
         "columns": ["Gap-based DDQN", "Force-based DDQN", "Traditional ACC", "Human"],
         "rows": {
@@ -99,6 +99,7 @@ def _controller(job: Job) -> Any:
         return HumanDriverModel(seed=job.seed), "none"
     from agent_client.ddqn import DDQNController
 
+    assert job.checkpoint is not None  # evaluate() gives every ddqn job its checkpoint
     return DDQNController.from_checkpoint(job.checkpoint), "gray"
 
 
@@ -200,9 +201,9 @@ def build_tables(out: Path, scenario: str, methods: list[str], labels: dict[str,
     with (out / "table.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["trajectory", "metric", "unit", *cols])
-        for traj in [None, *trajs]:
+        for which in [None, *trajs]:
             for label, key, unit, dec in rows:
-                w.writerow([traj or "mean", label, unit, *[_fmt(value(m, traj, key), 6 if dec else 0) for m in methods]])
+                w.writerow([which or "mean", label, unit, *[_fmt(value(m, which, key), 6 if dec else 0) for m in methods]])
     return {m: {key: value(m, None, key) for _, key, _, _ in rows} for m in methods}
 
 
