@@ -30,7 +30,7 @@ def _seconds(ctx: click.Context, param: click.Parameter, value: float | None) ->
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
 @click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
 @click.option("--seed", default=_D.seed, show_default=True, type=int)
-@click.option("--eval-every", default=_D.eval_every, show_default=True, type=click.IntRange(min=0), help="Steps between evaluations on test-1..4 (0: only at the end).")
+@click.option("--eval-every", default=_D.eval_every, show_default=True, type=click.IntRange(min=0), help="Steps between evaluations on --eval-trajectories (0: only at the end).")
 @click.option("--eval-seconds", default=None, type=float, callback=_seconds, help="Evaluation episode length [s] (default: whole trajectories).")
 @click.option("--eval-trajectories", default=",".join(_D.eval_trajectories), show_default=True, help="Comma-separated evaluation trajectories; they pick best.pt: test-1..test-4, or random:SEED for a selection set held out from the tests.")
 @click.option("--episode-seconds", default=_D.episode_seconds, show_default=True, type=float, callback=_seconds, help="Training episode length [s] (0: the whole 240 s trajectory).")
