@@ -7,6 +7,7 @@ Depends on numpy only and imports no other package of the project.
 * :mod:`energy.ev`: VT-CPEM Nissan Leaf with regeneration, and the paper's eq. 6
   with coefficients fitted to VT-CPEM (not the UCR values).
 * :mod:`energy.metrics`: :func:`evaluate_run`, every metric of a run log.
+* :mod:`energy.comfort`: the ISO 15622 window tests and acceleration sign changes.
 * :mod:`energy.runlog`, :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
 """
 
@@ -25,7 +26,7 @@ from energy.ev import (
     vtcpem_per_mile,
     vtcpem_power_w,
 )
-from energy.metrics import VEHICLE_NAMES, evaluate_run
+from energy.metrics import SETTLE_S, VEHICLE_NAMES, evaluate_run
 from energy.runlog import REQUIRED_COLUMNS, RunLog, read_run_log
 
 __all__ = [
@@ -34,6 +35,7 @@ __all__ = [
     "CYCLES",
     "LEAF",
     "REQUIRED_COLUMNS",
+    "SETTLE_S",
     "VEHICLE_NAMES",
     "CmemResult",
     "CmemVehicle",

@@ -8,7 +8,21 @@ import math
 import click
 
 from energy import RunLogError, evaluate_run
-from energy.metrics import D_SAFE_M, TIME_GAP_S, VEHICLE_NAMES
+from energy.metrics import D_SAFE_M, SETTLE_S, TIME_GAP_S, VEHICLE_NAMES, Metrics
+
+
+def finite_non_negative(ctx: click.Context, param: click.Parameter, value: float) -> float:
+    """Click callback: refuse a negative, NaN or infinite option with one line."""
+    if not (math.isfinite(value) and value >= 0.0):
+        raise click.BadParameter(f"must be a finite number >= 0, got {value}")
+    return value
+
+
+def json_safe(result: Metrics) -> Metrics:
+    """The metrics with every non-finite float (an overflow) as None, so JSON has null."""
+    return {
+        k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in result.items()
+    }
 
 
 def _fmt(value: float | int | str | None) -> str:
@@ -32,20 +46,43 @@ def _fmt(value: float | int | str | None) -> str:
     help="corolla: CMEM calibrated 2022 Corolla; average: paper-era CMEM category; leaf: EV eq. 6.",
 )
 @click.option(
-    "--time-gap", type=float, default=TIME_GAP_S, show_default=True, help="t_gap of d_ref [s]."
+    "--time-gap",
+    type=float,
+    default=TIME_GAP_S,
+    show_default=True,
+    callback=finite_non_negative,
+    help="t_gap of d_ref [s].",
 )
 @click.option(
-    "--d-safe", type=float, default=D_SAFE_M, show_default=True, help="d_safe of d_ref [m]."
+    "--d-safe",
+    type=float,
+    default=D_SAFE_M,
+    show_default=True,
+    callback=finite_non_negative,
+    help="d_safe of d_ref [m].",
+)
+@click.option(
+    "--settle",
+    type=float,
+    default=SETTLE_S,
+    show_default=True,
+    callback=finite_non_negative,
+    help="Seconds at the start left out of the comfort figures (accel, jerk, ISO windows, "
+    "sign changes); gap RMSE, energy and safety stay over the whole run.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
-def metrics(run_csv: str, vehicle: str, time_gap: float, d_safe: float, as_json: bool) -> None:
+def metrics(
+    run_csv: str, vehicle: str, time_gap: float, d_safe: float, settle: float, as_json: bool
+) -> None:
     """Print gap, safety, comfort and fuel/emission or energy metrics of RUN_CSV."""
     try:
-        result = evaluate_run(run_csv, vehicle, time_gap_s=time_gap, d_safe_m=d_safe)
+        result = evaluate_run(
+            run_csv, vehicle, time_gap_s=time_gap, d_safe_m=d_safe, settle_s=settle
+        )
     except RunLogError as e:
         raise click.ClickException(str(e)) from None
     if as_json:
-        click.echo(json.dumps(result, indent=2))
+        click.echo(json.dumps(json_safe(result), indent=2, allow_nan=False))
         return
     width = max(len(k) for k in result)
     click.echo(f"{'metric':<{width}}  value")

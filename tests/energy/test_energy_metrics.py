@@ -15,7 +15,8 @@ ICE_KEYS = {"fuel_g_per_mi", "co2_g_per_mi", "co_g_per_mi", "hc_g_per_mi", "nox_
 COMMON_KEYS = {
     "distance_m", "distance_mi", "collisions", "gap_rmse_55m_m", "gap_rmse_time_gap_m", "ttc_min_s",
     "ttc_under_threshold_share", "headway_mean_s", "headway_p50_s", "accel_rms_mps2", "jerk_rms_mps3",
-    "jerk_max_mps3", "force_rms",
+    "jerk_max_mps3", "force_rms", "speed_max_mps", "gap_min_m", "headway_min_s", "settle_s",
+    "iso_decel_window_share", "iso_jerk_window_share", "accel_sign_changes_per_min",
 }  # fmt: skip
 
 
@@ -66,7 +67,7 @@ def test_comfort_metrics_and_collisions() -> None:
     m = evaluate_run(
         _log(t=t, v_host=np.full(4, 10.0), v_lead=np.full(4, 10.0), gap=np.full(4, 30.0), accel=accel,
              force=np.array([0.0, 0.5, 0.5, -0.5]), collision=collision),
-        "corolla",
+        "corolla", settle_s=0.0,
     )  # fmt: skip
     assert m["accel_rms_mps2"] == pytest.approx(np.sqrt(3 / 4))
     assert m["jerk_max_mps3"] == pytest.approx(4.0)  # (-1 - 1) / 0.5
@@ -114,3 +115,49 @@ def test_every_metric_is_present(write_log: Callable[..., Path]) -> None:
 def test_unknown_vehicle(write_log: Callable[..., Path]) -> None:
     with pytest.raises(KeyError, match="unknown vehicle"):
         evaluate_run(write_log(make_log_rows()), "prius")
+
+
+def _settle_run() -> RunLog:
+    """30 s at 0.1 s: ±1.5 m/s² flips every second for the first 15 s, then steady at 20 m/s;
+    the gap is 8 m (TTC 4 s, headway 0.4 s) at t = 1 s and 55 m elsewhere."""
+    t = np.arange(301) * 0.1
+    accel = np.where(t < 15.0 - 1e-9, np.where(np.floor(t + 1e-9) % 2 == 0, 1.5, -1.5), 0.0)
+    v_host = np.where(np.abs(t - 1.0) < 1e-9, 22.0, 20.0)
+    gap = np.where(np.abs(t - 1.0) < 1e-9, 8.0, 55.0)
+    return _log(t=t, v_host=v_host, v_lead=np.full(t.size, 20.0), gap=gap, accel=accel)
+
+
+def test_settle_cuts_the_comfort_figures_only() -> None:
+    whole = evaluate_run(_settle_run(), "corolla", settle_s=0.0)
+    settled = evaluate_run(_settle_run(), "corolla")  # the default 15 s
+    assert settled["settle_s"] == 15.0 and whole["settle_s"] == 0.0
+    assert whole["accel_sign_changes_per_min"] == pytest.approx(14 / 0.5)  # t = 1 .. 14 s in 30 s
+    # 14 flips of 3 m/s² and the last 1.5 -> 0, each in 0.1 s, over 300 intervals
+    assert whole["jerk_rms_mps3"] == pytest.approx(np.sqrt((14 * 30**2 + 15**2) / 300))
+    # |a(s + 1) - a(s)| = 3 m/s³ for the windows that start at s = 0.0 .. 13.9 (from
+    # 14.0 on, a(s + 1) = 0 and the change is 1.5): 140 of 291
+    assert whole["iso_jerk_window_share"] == pytest.approx(140 / 291)
+    for key in ("accel_sign_changes_per_min", "jerk_rms_mps3", "jerk_max_mps3",
+                "accel_rms_mps2", "iso_jerk_window_share", "iso_decel_window_share"):  # fmt: skip
+        assert settled[key] == 0.0, key
+    for key in ("gap_rmse_55m_m", "gap_min_m", "ttc_min_s", "headway_min_s", "speed_max_mps",
+                "fuel_g_per_mi", "collisions"):  # fmt: skip
+        assert settled[key] == whole[key], key
+    assert settled["gap_min_m"] == 8.0 and settled["ttc_min_s"] == pytest.approx(4.0)
+    assert settled["headway_min_s"] == pytest.approx(8.0 / 22.0)
+    assert settled["speed_max_mps"] == 22.0
+
+
+def test_settle_longer_than_the_run_leaves_comfort_undefined() -> None:
+    m = evaluate_run(_settle_run(), "corolla", settle_s=30.0)  # one row left
+    assert m["jerk_rms_mps3"] is None and m["iso_jerk_window_share"] is None
+    assert m["gap_rmse_55m_m"] > 0.0
+    m = evaluate_run(_settle_run(), "corolla", settle_s=29.5)  # 6 rows: under one 1-s window
+    assert m["jerk_rms_mps3"] == 0.0 and m["iso_jerk_window_share"] is None
+
+
+@pytest.mark.parametrize("option", ["time_gap_s", "d_safe_m", "settle_s", "desired_gap_m"])
+@pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
+def test_bad_options_are_refused(option: str, value: float) -> None:
+    with pytest.raises(ValueError, match=f"{option} must be a finite number >= 0"):
+        evaluate_run(_settle_run(), "corolla", **{option: value})

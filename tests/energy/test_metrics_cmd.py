@@ -66,3 +66,49 @@ def test_missing_column_and_missing_file(write_log: Callable[..., Path], tmp_pat
     res = CliRunner().invoke(metrics, [str(tmp_path / "none.csv"), "--json"])
     assert res.exit_code != 0 and "none.csv: file not found" in res.output
     assert isinstance(res.exception, SystemExit)
+
+
+def _strict_json(text: str) -> dict[str, object]:
+    def refuse(name: str) -> None:
+        raise ValueError(f"not JSON: {name}")
+
+    return json.loads(text, parse_constant=refuse)  # NaN, Infinity are not JSON
+
+
+def test_json_has_the_comfort_figures_and_the_settle(write_log: Callable[..., Path]) -> None:
+    rows = make_log_rows(n=301)  # 30 s
+    for r in rows[:150]:  # ±2 m/s² flips every 0.5 s in the first 15 s
+        r["accel"] = 2.0 if (r["frame"] // 5) % 2 == 0 else -2.0  # type: ignore[operator]
+    path = write_log(rows)
+    runner = CliRunner()
+    settled = _strict_json(runner.invoke(metrics, [str(path), "--json"]).output)
+    assert settled["settle_s"] == 15.0
+    assert settled["jerk_rms_mps3"] == 0.0 and settled["accel_sign_changes_per_min"] == 0.0
+    whole = _strict_json(runner.invoke(metrics, [str(path), "--json", "--settle", "0"]).output)
+    assert whole["accel_sign_changes_per_min"] == pytest.approx(29 / 0.5)
+    assert whole["iso_jerk_window_share"] == pytest.approx(0.0)  # a(t + 1 s) = a(t)
+    for key in ("speed_max_mps", "gap_min_m", "headway_min_s", "gap_rmse_55m_m"):
+        assert whole[key] == settled[key]
+    table = runner.invoke(metrics, [str(path), "--settle", "0"]).output
+    assert "iso_jerk_window_share" in table and "accel_sign_changes_per_min" in table
+
+
+def test_json_writes_null_for_an_overflow(write_log: Callable[..., Path]) -> None:
+    path = write_log(make_log_rows())
+    res = CliRunner().invoke(metrics, [str(path), "--json", "--time-gap", "1e308"])
+    assert res.exit_code == 0, res.output
+    assert _strict_json(res.output)["gap_rmse_time_gap_m"] is None  # v t_gap overflows
+    res = CliRunner().invoke(metrics, [str(path), "--json", "--settle", "100"])
+    assert _strict_json(res.output)["jerk_rms_mps3"] is None  # nothing left after 100 s
+
+
+@pytest.mark.parametrize("option", ["--time-gap", "--d-safe", "--settle"])
+@pytest.mark.parametrize("value", ["-1", "nan", "inf", "-inf"])
+def test_bad_options_are_one_line_errors(
+    write_log: Callable[..., Path], option: str, value: str
+) -> None:
+    path = write_log(make_log_rows())
+    res = CliRunner().invoke(metrics, [str(path), "--json", option, value])
+    assert res.exit_code == 2 and isinstance(res.exception, SystemExit)
+    assert f"Invalid value for '{option}': must be a finite number >= 0, got" in res.output
+    assert "{" not in res.output  # no JSON printed
