@@ -3,6 +3,10 @@
 Each run is a real simulator process and a client over UDP. The lead vehicle is
 scored on its own trajectory (as in the paper); its logs carry the lead's speed as
 ``v_host`` and a 55 m placeholder gap, so gap rows are blank for it.
+
+Besides the paper's rows, every table has the safety minima and the comfort rows
+(ISO 15622 windows, jerk RMS, sign changes; ``docs/results.md``, "Comfort metrics").
+The comfort rows leave out the first ``--settle`` seconds of each run.
 """
 
 from __future__ import annotations
@@ -14,12 +18,14 @@ import subprocess
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import click
 import numpy as np
 
-from energy import evaluate_run
+from energy import SETTLE_S, evaluate_run
+from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
+from vacc.metrics_cmd import finite_non_negative
 
 TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4")
 METHODS = ("lead", "ddqn-gap", "ddqn-force", "acc", "human")
@@ -32,22 +38,49 @@ LABELS = {
 HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
 DEFAULT_VEHICLE = {"ice": "corolla", "ev": "leaf"}
 
-# (label, metric key, unit, decimals); None rows are blank for the lead.
+
+class Row(NamedTuple):
+    """One row of a results table: a metric of :func:`energy.evaluate_run`, as shown."""
+
+    label: str
+    key: str
+    unit: str
+    decimals: int
+    combine: str = "mean"
+    """How the runs of one method combine: mean, sum, min or max."""
+    scale: float = 1.0
+    """Display factor (a share as %); evaluate_run's value is SI or a fraction."""
+    follower_only: bool = False
+    """Blank for the lead: its log has a 55 m placeholder gap."""
+
+
 ICE_ROWS = [
-    ("Fuel", "fuel_g_per_mi", "g/mi", 1),
-    ("CO2", "co2_g_per_mi", "g/mi", 1),
-    ("CO", "co_g_per_mi", "g/mi", 3),
-    ("HC", "hc_g_per_mi", "g/mi", 4),
-    ("NOx", "nox_g_per_mi", "g/mi", 4),
+    Row("Fuel", "fuel_g_per_mi", "g/mi", 1),
+    Row("CO2", "co2_g_per_mi", "g/mi", 1),
+    Row("CO", "co_g_per_mi", "g/mi", 3),
+    Row("HC", "hc_g_per_mi", "g/mi", 4),
+    Row("NOx", "nox_g_per_mi", "g/mi", 4),
 ]
-EV_ROWS = [("Energy", "energy_kj_per_mi", "kJ/mi", 1)]
+EV_ROWS = [Row("Energy", "energy_kj_per_mi", "kJ/mi", 1)]
 DRIVING_ROWS = [
-    ("Gap RMSE to 55 m", "gap_rmse_55m_m", "m", 3),
-    ("Collisions", "collisions", "", 0),
-    ("Min time-to-collision", "ttc_min_s", "s", 2),
-    ("Jerk RMS", "jerk_rms_mps3", "m/s^3", 3),
+    Row("Gap RMSE to 55 m", "gap_rmse_55m_m", "m", 3, follower_only=True),
+    Row("Collisions", "collisions", "", 0, "sum", follower_only=True),
+    Row("Min gap", "gap_min_m", "m", 2, "min", follower_only=True),
+    Row("Min time-to-collision", "ttc_min_s", "s", 2, "min", follower_only=True),
+    Row("Min time headway", "headway_min_s", "s", 2, "min", follower_only=True),
+    Row("Max speed", "speed_max_mps", "m/s", 2, "max"),
 ]
-GAP_KEYS = {"gap_rmse_55m_m", "collisions", "ttc_min_s"}
+# After --settle (energy.metrics): the ride, judged by ISO 15622 (energy.comfort).
+COMFORT_ROWS = [
+    Row("Jerk RMS", "jerk_rms_mps3", "m/s^3", 3),
+    Row(f"ISO jerk: 1-s windows over {ISO_JERK_LIMIT_MPS3:g} m/s^3", "iso_jerk_window_share",
+        "%", 1, scale=100.0),
+    Row(f"ISO decel: 2-s windows over {ISO_DECEL_LIMIT_MPS2:g} m/s^2", "iso_decel_window_share",
+        "%", 1, scale=100.0),
+    Row("Accel sign changes", "accel_sign_changes_per_min", "1/min", 1),
+]
+COMBINE = {"mean": lambda v: float(np.mean(v)), "sum": lambda v: int(sum(v)),
+           "min": min, "max": max}
 
 # The paper's Tables 3 and 4 (Wei et al. 2019), for comparison.
 PAPER: dict[str, dict[str, Any]] = {
@@ -151,44 +184,56 @@ def _fmt(value: Any, decimals: int) -> str:
     return f"{value:.{decimals}f}"
 
 
-def build_tables(out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str) -> dict[str, Any]:
-    """Score every log, write table.md/table.csv; returns the averaged metrics."""
-    rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS
+def build_tables(
+    out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str,
+    settle: float = SETTLE_S,
+) -> dict[str, Any]:
+    """Score every log, write table.md/table.csv; returns the combined metrics per method.
+
+    Args:
+        settle: seconds at the start of each run left out of the comfort rows [s].
+    """
+    rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS + COMFORT_ROWS
     per: dict[str, dict[str, dict[str, Any]]] = {}
     for method in methods:
         per[method] = {}
         for traj in TRAJECTORIES:
             log = out / "logs" / f"{method}-{traj}.csv"
             if log.exists():
-                per[method][traj] = evaluate_run(log, vehicle)
+                per[method][traj] = evaluate_run(log, vehicle, settle_s=settle)
     trajs = [t for t in TRAJECTORIES if all(t in per[m] for m in methods)]
 
-    def value(method: str, traj: str | None, key: str) -> Any:
-        if method == "lead" and key in GAP_KEYS:
+    def value(method: str, traj: str | None, row: Row) -> Any:
+        if method == "lead" and row.follower_only:
             return None
-        vals = [per[method][t][key] for t in ([traj] if traj else trajs)]
-        if any(v is None for v in vals):
-            vals = [v for v in vals if v is not None]
-            if not vals:
-                return None
-        if key == "collisions":
-            return int(sum(vals))
-        if key == "ttc_min_s":
-            return min(vals)
-        return float(np.mean(vals))
+        vals = [per[method][t][row.key] for t in ([traj] if traj else trajs)]
+        vals = [v for v in vals if v is not None]  # None: undefined on that run (no closing-in)
+        return COMBINE[row.combine](vals) if vals else None
+
+    def shown(method: str, traj: str | None, row: Row, decimals: int) -> str:
+        v = value(method, traj, row)
+        return _fmt(None if v is None else v * row.scale, decimals)
 
     cols = [labels[m] for m in methods]
     lines = [f"# {scenario.upper()} results ({'CMEM ' + vehicle if scenario == 'ice' else 'EV eq. 6 ' + vehicle}), average of {len(trajs)} trajectories", ""]
 
     def table(traj: str | None) -> list[str]:
         t = ["| Metric | " + " | ".join(cols) + " |", "| --- |" + " --- |" * len(cols)]
-        for label, key, unit, dec in rows:
-            name = f"{label} ({unit})" if unit else label
-            t.append(f"| {name} | " + " | ".join(_fmt(value(m, traj, key), dec) for m in methods) + " |")
+        for row in rows:
+            name = f"{row.label} ({row.unit})" if row.unit else row.label
+            t.append(f"| {name} | " + " | ".join(shown(m, traj, row, row.decimals) for m in methods) + " |")
         return t
 
     lines += table(None)
-    lines += ["", "Collisions are summed and the minimum time-to-collision is the minimum over the runs; the rest are means.", ""]
+    lines += [
+        "",
+        "Collisions are summed, minimum gap, time-to-collision and headway are minima and the maximum speed is "
+        "the maximum over the runs; the rest are means.",
+        f"The last {len(COMFORT_ROWS)} rows (comfort) leave out the first {settle:g} s of each run (`--settle`); "
+        "every other row is over the whole run. ISO 15622 limits: mean deceleration over any 2 s "
+        f"≤ {ISO_DECEL_LIMIT_MPS2:g} m/s², mean jerk over any 1 s ≤ {ISO_JERK_LIMIT_MPS3:g} m/s³.",
+        "",
+    ]
     paper = PAPER[scenario]
     lines += [f"## The paper's Table {'3' if scenario == 'ice' else '4'} (Wei et al. 2019)", ""]
     lines += ["| Metric | " + " | ".join(paper["columns"]) + " |", "| --- |" + " --- |" * len(paper["columns"])]
@@ -202,9 +247,9 @@ def build_tables(out: Path, scenario: str, methods: list[str], labels: dict[str,
         w = csv.writer(f)
         w.writerow(["trajectory", "metric", "unit", *cols])
         for which in [None, *trajs]:
-            for label, key, unit, dec in rows:
-                w.writerow([which or "mean", label, unit, *[_fmt(value(m, which, key), 6 if dec else 0) for m in methods]])
-    return {m: {key: value(m, None, key) for _, key, _, _ in rows} for m in methods}
+            for row in rows:
+                w.writerow([which or "mean", row.label, row.unit, *[shown(m, which, row, 6 if row.decimals else 0) for m in methods]])
+    return {m: {row.key: value(m, None, row) for row in rows} for m in methods}
 
 
 def plot_runs(out: Path, methods: list[str], labels: dict[str, str], traj: str = "test-1") -> None:
@@ -291,7 +336,8 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--duration", default=None, type=click.FloatRange(min=0.5), help="Drive only this many seconds of each trajectory.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Episode seed (initial conditions, traffic).")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
-def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int) -> None:
+@click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
+def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float) -> None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures."""
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = sorted(set(chosen) - set(METHODS))
@@ -330,7 +376,7 @@ def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tu
                 f.cancel()
             raise click.ClickException(f"a run failed: {exc}") from None
     veh = vehicle or DEFAULT_VEHICLE[scenario]
-    build_tables(out_dir, scenario, chosen, labels, veh)
+    build_tables(out_dir, scenario, chosen, labels, veh, settle)
     plot_runs(out_dir, chosen, labels)
     plot_training(out_dir, models_dir, scenario)
     click.echo((out_dir / "table.md").read_text().split("\n## ")[0])

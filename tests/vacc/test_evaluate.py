@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 
@@ -17,7 +18,7 @@ def vacc(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def evaluated(tmp_path_factory):
     out = tmp_path_factory.mktemp("eval")
-    result = vacc("evaluate", "--scenario", "ice", "--out", str(out), "--methods", "lead,acc,human", "--duration", "5", "--jobs", "2")
+    result = vacc("evaluate", "--scenario", "ice", "--out", str(out), "--methods", "lead,acc,human", "--duration", "5", "--jobs", "2", "--settle", "1")
     assert result.returncode == 0, result.stderr
     return out, result
 
@@ -49,6 +50,10 @@ def test_numbers_equal_vacc_metrics_on_the_logs(evaluated):
         m = json.loads(result.stdout)
         assert float(rows[(traj, "Fuel")]["Traditional ACC"]) == pytest.approx(m["fuel_g_per_mi"], abs=1e-6)
         assert float(rows[(traj, "Gap RMSE to 55 m")]["Traditional ACC"]) == pytest.approx(m["gap_rmse_55m_m"], abs=1e-6)
+        m = json.loads(vacc("metrics", str(out / "logs" / f"acc-{traj}.csv"), "--json", "--settle", "1").stdout)
+        assert float(rows[(traj, "Jerk RMS")]["Traditional ACC"]) == pytest.approx(m["jerk_rms_mps3"], abs=1e-6)
+        assert float(rows[(traj, "ISO jerk: 1-s windows over 2.5 m/s^3")]["Traditional ACC"]) == pytest.approx(100 * m["iso_jerk_window_share"], abs=1e-6)
+        assert float(rows[(traj, "Max speed")]["Traditional ACC"]) == pytest.approx(m["speed_max_mps"], abs=1e-6)
     fuels = [json.loads(vacc("metrics", str(out / "logs" / f"acc-test-{i}.csv"), "--json").stdout)["fuel_g_per_mi"] for i in range(1, 5)]
     assert float(rows[("mean", "Fuel")]["Traditional ACC"]) == pytest.approx(sum(fuels) / 4, abs=1e-6)
 
@@ -81,3 +86,51 @@ def test_ddqn_methods_drive_from_the_models_folder(tmp_path, zoom):
     rows = list(csv.reader((out / "logs" / "ddqn-gap-test-2.csv").open()))
     assert len(rows) == 1 + 21
     assert "Gap-based DDQN" in (out / "table.md").read_text()
+
+
+def _write_log(path, gap: float, v_max: float, flips: bool) -> None:
+    """A 30 s log at 0.1 s: steady at 20 m/s with one row at v_max and gap; ±1.5 m/s²
+    flips every second over 20-25 s when flips."""
+    with path.open("w") as f:
+        f.write("t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n")
+        for k in range(301):
+            t = k / 10
+            accel = (1.5 if k // 10 % 2 == 0 else -1.5) if flips and 200 <= k < 250 else 0.0
+            v, g = (v_max, gap) if k == 100 else (20.0, 55.0)
+            f.write(f"{t},{k},{v},20.0,{g},{accel},0.0,0,0.0\n")
+
+
+def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
+    """Minima are minima over the runs, the maximum speed a maximum, shares are shown in %."""
+    from vacc.evaluate import build_tables
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for i in range(1, 5):
+        _write_log(logs / f"acc-test-{i}.csv", gap=40.0 - i, v_max=20.0 + i, flips=i == 2)
+        _write_log(logs / f"lead-test-{i}.csv", gap=55.0, v_max=25.0, flips=False)
+    res = build_tables(tmp_path, "ice", ["lead", "acc"], {"lead": "Lead", "acc": "ACC"}, "corolla")
+    acc = res["acc"]
+    assert acc["gap_min_m"] == 36.0 and acc["speed_max_mps"] == 24.0
+    assert acc["headway_min_s"] == pytest.approx(36.0 / 24.0)
+    assert res["lead"]["gap_min_m"] is None and res["lead"]["speed_max_mps"] == 25.0
+    # test-2: 4 flips in the 15 s after the 15 s settle; the others none
+    assert acc["accel_sign_changes_per_min"] == pytest.approx((4 / 0.25) / 4)
+    rows = {(r["trajectory"], r["metric"]): r for r in csv.DictReader((tmp_path / "table.csv").open())}
+    share = float(rows[("test-2", "ISO jerk: 1-s windows over 2.5 m/s^3")]["ACC"])
+    assert share == pytest.approx(100 * 40 / 141)  # windows from s = 20.0 .. 23.9 flip 3 m/s²
+    assert float(rows[("mean", "Min gap")]["ACC"]) == 36.0
+    assert rows[("mean", "Min gap")]["Lead"] == "—"
+    md = (tmp_path / "table.md").read_text()
+    assert "leave out the first 15 s" in md and "| Accel sign changes (1/min) |" in md
+    whole = build_tables(tmp_path, "ice", ["acc"], {"acc": "ACC"}, "corolla", settle=0.0)["acc"]
+    # the same jerk, spread over 300 intervals instead of the last 150
+    assert whole["jerk_rms_mps3"] == pytest.approx(acc["jerk_rms_mps3"] * np.sqrt(150 / 300))
+    assert whole["gap_min_m"] == acc["gap_min_m"] and "first 0 s" in (tmp_path / "table.md").read_text()
+
+
+@pytest.mark.parametrize("value", ["-1", "nan"])
+def test_bad_settle_is_a_one_line_error(tmp_path, value):
+    result = vacc("evaluate", "--out", str(tmp_path / "o"), "--methods", "acc", "--settle", value)
+    assert result.returncode == 2 and "Invalid value for '--settle': must be a finite number >= 0" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
