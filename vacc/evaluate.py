@@ -15,6 +15,7 @@ import csv
 import math
 import os
 import subprocess
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,8 +80,10 @@ COMFORT_ROWS = [
         "%", 1, scale=100.0),
     Row("Accel sign changes", "accel_sign_changes_per_min", "1/min", 1),
 ]
-COMBINE = {"mean": lambda v: float(np.mean(v)), "sum": lambda v: int(sum(v)),
-           "min": min, "max": max}
+COMBINE: dict[str, Callable[[list[Any]], Any]] = {
+    "mean": lambda v: float(np.mean(v)), "sum": lambda v: int(sum(v)),
+    "min": min, "max": max,
+}
 
 # The paper's Tables 3 and 4 (Wei et al. 2019), for comparison.
 PAPER: dict[str, dict[str, Any]] = {
@@ -130,7 +133,7 @@ def _controller(job: Job) -> Any:
         from agent_client.controllers.hdm import HumanDriverModel
 
         return HumanDriverModel(seed=job.seed), "none"
-    from agent_client.ddqn import DDQNController
+    from agent_client.controllers.ddqn import DDQNController
 
     assert job.checkpoint is not None  # evaluate() gives every ddqn job its checkpoint
     return DDQNController.from_checkpoint(job.checkpoint), "gray"
