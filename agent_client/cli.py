@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import numpy as np
 
 from agent_client.controllers.acc import AccController
 from agent_client.controllers.hdm import NAME as HDM_NAME
@@ -20,6 +21,7 @@ from agent_client.controllers.human_file import (
     HumanFileRecorder,
     RecordingController,
     read_human_file,
+    start_extra,
     trajectory_label,
 )
 from agent_client.controllers.keyboard import (
@@ -34,9 +36,9 @@ from agent_client.launcher import local_server
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
 from protocol.faults import FaultConfig
+from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
 
 CONTROLLERS = ("acc", "hdm", "ddqn", "human-file", "keyboard")
-TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4", "random")
 LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
 
 
@@ -68,6 +70,39 @@ def parse_joystick_map(ctx: click.Context, param: click.Parameter, value: str) -
         raise click.BadParameter(str(exc)) from None
 
 
+def load_lead(trajectory: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """None for a named trajectory, else the (times [s], speeds [m/s]) of a CSV trace.
+
+    Raises:
+        click.BadParameter: one line: an unknown name, or what is wrong with the file.
+    """
+    if trajectory in TRAJECTORIES:
+        return None
+    if not trajectory.lower().endswith(".csv") and not Path(trajectory).exists():
+        raise click.BadParameter(f"unknown trajectory {trajectory!r}; expected one of {', '.join(TRAJECTORIES)} or PATH.csv", param_hint="--trajectory")
+    try:
+        return load_trace(trajectory)
+    except ClientError as exc:
+        raise click.BadParameter(str(exc), param_hint="--trajectory") from None
+
+
+def check_start(host_speed: float | None, gap: float | None, set_speed: float) -> None:
+    """Check --host-speed, --gap and --set-speed before a server is spawned.
+
+    Raises:
+        click.BadParameter: one line naming the option and its range.
+    """
+    for hint, values in (
+        ("--set-speed", {"set_speed": set_speed}),
+        ("--host-speed", {"set_speed": set_speed, "host_speed": host_speed}),
+        ("--gap", {"set_speed": set_speed, "gap": gap}),
+    ):
+        try:
+            check_initial(**{"host_speed": None, "gap": None, **values})
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint=hint) from None
+
+
 @contextlib.contextmanager
 def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str, int]]:
     """The given server, or a local server process spawned (and reaped) for the block."""
@@ -81,9 +116,12 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.command("drive")
 @click.option("--controller", required=True, type=click.Choice(CONTROLLERS), help="Who drives.")
 @click.option("--server", default=None, metavar="HOST:PORT", help="Use this server; default: spawn a local one.")
-@click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
-@click.option("--trajectory", default="test-1", show_default=True, metavar="{test-1..test-4,random,PATH.csv}", help="Lead trajectory, or a CSV speed trace t_s,speed_mps.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Episode seed: initial conditions, traffic, scenery.")
+@click.option("--scenario", default="ice", show_default=True, type=click.Choice(SCENARIOS))
+@click.option("--trajectory", default="test-1", show_default=True, metavar="{test-1..test-4,random,SCENARIO,PATH.csv}", help=f"Lead trajectory: {', '.join(TRAJECTORIES)} (lead scenarios: docs/scenarios.md), or a CSV speed trace t_s,speed_mps, driven as given.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Episode seed: initial conditions, traffic, scenery, scenario parameters.")
+@click.option("--host-speed", default=None, type=float, metavar="M/S", help="Host's initial speed [m/s], 0..set speed. Default: drawn from the seed (a CSV trace: the lead's first speed).")
+@click.option("--gap", default=None, type=float, metavar="M", help="Initial gap [m], (0, 300). Default: drawn from the seed.")
+@click.option("--set-speed", default=DEFAULT_SET_SPEED, show_default=True, type=float, metavar="M/S", help="Cruise set speed [m/s]: the host never drives faster; the ACC cruises at it.")
 @click.option("--checkpoint", default=None, type=click.Path(dir_okay=False), help="DDQN checkpoint (--controller ddqn).")
 @click.option("--human-file", default=None, type=click.Path(dir_okay=False), help="Recorded forces (--controller human-file).")
 @click.option("--log", "log_path", required=True, type=click.Path(dir_okay=False, writable=True), help="Run log CSV to write.")
@@ -104,6 +142,9 @@ def drive(
     scenario: str,
     trajectory: str,
     seed: int,
+    host_speed: float | None,
+    gap: float | None,
+    set_speed: float,
     checkpoint: str | None,
     human_file: str | None,
     log_path: str,
@@ -124,6 +165,9 @@ def drive(
     The log has one row per control step: t,frame,v_host,v_lead,gap,accel,force,
     collision,a_lead (SI units). Exits non-zero if the server is lost.
     """
+    check_start(host_speed, gap, set_speed)
+    trace = load_lead(trajectory)
+    start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
     policy: Any = None
     replay = None
     if controller == "acc":
@@ -135,7 +179,7 @@ def drive(
             raise click.UsageError("--controller human-file needs --human-file PATH")
         try:
             replay = read_human_file(human_file)
-            replay.check(scenario=scenario, trajectory=trajectory, seed=seed)
+            replay.check(scenario=scenario, trajectory=trajectory, seed=seed, **start)
         except ClientError as exc:
             raise click.ClickException(str(exc)) from None
         duration = replay.header.duration if duration is None else duration
@@ -160,12 +204,6 @@ def drive(
         raise click.UsageError(f"--controller {controller} is not available yet in this version")
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
-    trace = None
-    if trajectory not in TEST_TRAJECTORIES:
-        try:
-            trace = load_trace(trajectory)
-        except ClientError as exc:
-            raise click.BadParameter(str(exc), param_hint="--trajectory") from None
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
     image_format = "rgb" if live else "none"
     image_size = LIVE_IMAGE
@@ -181,18 +219,18 @@ def drive(
         ):
             period = float(session.welcome["control_period"]) if session.welcome else 0.1
             if replay is not None:
-                replay.check(scenario=scenario, trajectory=trajectory, seed=seed, control_period=period)
+                replay.check(scenario=scenario, trajectory=trajectory, seed=seed, control_period=period, **start)
             if live:
                 window = DrivingWindow(scale=window_scale)
                 stack.callback(window.close)
                 policy = KeyboardController(period, window, joystick=None if joystick < 0 else joystick, joystick_map=joystick_map)
             if record_path is not None:
-                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration)
+                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration, extra=start_extra(**start))
                 recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
                 policy = RecordingController(policy, recorder)
             summary = drive_episode(
                 session, policy, scenario=scenario, seed=seed, trajectory=trajectory, trace=trace,
-                duration=duration, log=Path(log_path),
+                duration=duration, log=Path(log_path), host_speed=host_speed, gap=gap, set_speed=set_speed,
             )  # fmt: skip
     except (FatalSessionError, SessionError) as exc:
         raise click.ClickException(f"{exc} (log so far: {log_path})") from None

@@ -64,12 +64,16 @@ def drive_episode(
     duration: float | None = None,
     log: str | Path | None = None,
     on_step: Callable[[dict[str, Any]], None] | None = None,
+    host_speed: float | None = None,
+    gap: float | None = None,
+    set_speed: float | None = None,
 ) -> DriveSummary:
     """Reset, then step ``controller`` until the episode ends.
 
     The log is written row by row, so an interrupted run keeps what it drove. A
     controller may raise :class:`StopEpisode` to end the episode early; the summary's
-    ``reason`` is then "".
+    ``reason`` is then "". ``host_speed`` [m/s], ``gap`` [m] and ``set_speed`` [m/s]
+    go to the reset (None: the server's draw or default).
 
     Raises:
         SessionError, FatalSessionError: from the session.
@@ -79,7 +83,10 @@ def drive_episode(
     gaps: list[float] = []
     collision = False
     with RunLog(log) as runlog:
-        obs = session.reset(scenario=scenario, seed=seed, trajectory=trajectory, trace=trace, duration=duration)
+        obs = session.reset(
+            scenario=scenario, seed=seed, trajectory=trajectory, trace=trace, duration=duration,
+            host_speed=host_speed, gap=gap, set_speed=set_speed,
+        )  # fmt: skip
         if hasattr(controller, "reset"):
             controller.reset()
         while True:

@@ -18,10 +18,12 @@ from agent_client.launcher import local_server
 from agent_client.rewards import REWARDS
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
+from protocol.scenarios import check_initial, check_trajectory
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
 
 N_ACTIONS = 21
+RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed"})
 FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of each action: -1.0, -0.9, ..., 1.0
 
 
@@ -45,8 +47,16 @@ class VisionACCEnv(gym.Env):
     ``"force"``, normalised to [-1, 1].
 
     ## Starting state
-    Table 2 of the paper for the scenario: initial host speed and gap drawn from the
-    episode seed; the lead follows the chosen trajectory.
+    Table 2 of the paper for the scenario (or the lead scenario's own ranges,
+    ``docs/scenarios.md``): initial host speed and gap drawn from the episode seed;
+    the lead follows the chosen trajectory. ``reset(options=...)`` may set
+    ``trajectory``, ``seed``, ``host_speed`` [m/s], ``gap`` [m] and ``set_speed``
+    [m/s] for one episode.
+
+    ## Set speed
+    The host never drives faster than the cruise set speed (default 33.5 m/s; the
+    simulator's speed limiter). It is a driver input, not privileged: ``info``
+    carries it as ``set_speed``.
 
     ## Episode end
     Terminated on a collision or a gap over 300 m; truncated at the end of the
@@ -55,13 +65,16 @@ class VisionACCEnv(gym.Env):
     ## Arguments
     ``server``: (host, port) of a running server, or None to spawn one (reaped on
     ``close``). ``scenario``: "ice" | "ev". ``trajectory``: "random" (a new one each
-    episode) or "test-1".."test-4". ``frame_stack``, ``stack_stride``: the stack.
+    episode), "test-1".."test-4" or a lead scenario (``stopped``, ``brake-stop``, ...;
+    :data:`protocol.scenarios.TRAJECTORIES`). ``set_speed``: cruise set speed [m/s],
+    None for the default. ``frame_stack``, ``stack_stride``: the stack.
     ``zoom``: 1, the paper's preprocessing (a 200x200 gray camera, the 400x400 one
     halved); 2, the same 105x150 window at full resolution (a 400x400 gray camera;
     :mod:`agent_client.preprocess`).
 
     ## Version history
-    * v0: first version.
+    * v0: first version; lead scenarios, ``set_speed`` and the ``host_speed``/``gap``
+      reset options added with protocol version 2.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -80,7 +93,10 @@ class VisionACCEnv(gym.Env):
         give_up: float = GIVE_UP,
         server_args: tuple[str, ...] = (),
         zoom: int = 1,
+        set_speed: float | None = None,
     ):
+        check_trajectory(trajectory)
+        check_initial(host_speed=None, gap=None, set_speed=set_speed)
         if reward not in REWARDS:
             raise ValueError(f"reward {reward!r} is not one of {sorted(REWARDS)}")
         if frame_stack < 1 or stack_stride < 1:
@@ -90,6 +106,7 @@ class VisionACCEnv(gym.Env):
         image_size = pre.camera_size(zoom)  # checks zoom
         self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
+        self.set_speed = set_speed
         self.reward_fn = REWARDS[reward]
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self.episode_seconds = episode_seconds
@@ -118,18 +135,28 @@ class VisionACCEnv(gym.Env):
 
     @staticmethod
     def _info(obs: dict[str, Any]) -> dict[str, Any]:
-        keys = ("t", "frame", "gap", "v_host", "v_lead", "accel", "force", "collision", "reason")
+        keys = ("t", "frame", "gap", "v_host", "v_lead", "accel", "force", "collision", "reason", "set_speed")
         return {k: obs[k] for k in keys}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = options or {}
         episode_seed = int(options.get("seed", self.np_random.integers(2**31)))
+        unknown = set(options) - RESET_OPTIONS
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; expected some of {sorted(RESET_OPTIONS)}")
+        trajectory = check_trajectory(options.get("trajectory", self.trajectory))
+        set_speed = options.get("set_speed", self.set_speed)
+        host_speed, gap = options.get("host_speed"), options.get("gap")
+        check_initial(host_speed=host_speed, gap=gap, set_speed=set_speed)
         obs = self.session.reset(
             scenario=self.scenario,
             seed=episode_seed,
-            trajectory=options.get("trajectory", self.trajectory),
+            trajectory=trajectory,
             duration=self.episode_seconds,
+            host_speed=host_speed,
+            gap=gap,
+            set_speed=set_speed,
         )
         self._stacker.reset()
         info = self._info(obs)

@@ -190,11 +190,25 @@ class Session:
         *,
         trace: tuple[np.ndarray, np.ndarray] | None = None,
         duration: float | None = None,
+        host_speed: float | None = None,
+        gap: float | None = None,
+        set_speed: float | None = None,
     ) -> dict[str, Any]:
         """Start a new episode; returns the observation of frame 0.
 
+        Args:
+            scenario: "ice" or "ev".
+            seed: episode seed.
+            trajectory: a name of :data:`protocol.scenarios.TRAJECTORIES`.
+            trace: (times [s], speeds [m/s]) of a lead trace; replaces ``trajectory``.
+            duration: truncate the episode after this many seconds.
+            host_speed: host's initial speed [m/s]; None: the server draws it.
+            gap: initial gap [m]; None: the server draws it.
+            set_speed: cruise set speed [m/s]; None: the server's default (33.5).
+
         Raises:
-            SessionError: the server refused the reset (unknown scenario, bad trace).
+            SessionError: the server refused the reset (unknown scenario, bad trace,
+                initial condition or set speed out of range).
             FatalSessionError, ServerTimeout: the session is lost.
         """
         self._check_open()
@@ -210,6 +224,9 @@ class Session:
             "trace_t": None if trace is None else [float(x) for x in trace[0]],
             "trace_v": None if trace is None else [float(x) for x in trace[1]],
             "duration": None if duration is None else float(duration),
+            "host_speed": None if host_speed is None else float(host_speed),
+            "gap": None if gap is None else float(gap),
+            "set_speed": None if set_speed is None else float(set_speed),
         }
         obs = self._request(
             msg,

@@ -1,4 +1,4 @@
-"""Message schemas of the vacc wire protocol (version 1).
+"""Message schemas of the vacc wire protocol (version 2).
 
 Every message is a msgpack map with a ``"type"`` tag. This module is the single
 source of truth for which fields each type carries and of which wire type; the
@@ -27,7 +27,9 @@ __all__ = [
     "error",
 ]
 
-PROTOCOL_VERSION = 1
+# 2: reset gained host_speed, gap and set_speed; obs gained set_speed; lead
+#    scenarios as trajectory names (protocol/scenarios.py).
+PROTOCOL_VERSION = 2
 
 # Image formats a client may ask for in the handshake.
 IMAGE_FORMATS = ("none", "rgb", "gray")
@@ -49,7 +51,7 @@ class ErrorCode(IntEnum):
     BUSY = 4  # the server's one world is in use by another session
     BAD_FRAME = 5  # step for a frame that is neither current nor the last answered
     BAD_ACTION = 6  # action not finite or outside [-1, 1]
-    BAD_RESET = 7  # unknown scenario or trajectory, or a bad trace
+    BAD_RESET = 7  # unknown scenario or trajectory, bad trace, initial condition or set speed
     EPISODE_OVER = 8  # step after the episode terminated or was truncated
     NO_EPISODE = 9  # step before any reset, or for another episode
     INTERNAL = 10  # a bug on the server (fatal)
@@ -99,10 +101,13 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "episode": _INT,  # client's episode counter, strictly increasing
         "scenario": _STR,  # "ice" | "ev"
         "seed": _INT,  # world seed: initial conditions, traffic, scenery, random trajectory
-        "trajectory": _STR,  # "test-1".."test-4" | "random" | "trace"
+        "trajectory": _STR,  # protocol.scenarios.TRAJECTORIES (tests, "random", lead scenarios) | "trace"
         "trace_t": _OPT_ARRAY,  # [s] lead speed trace times when trajectory == "trace"
         "trace_v": _OPT_ARRAY,  # [m/s] lead speed trace values
         "duration": _OPT_FLOAT,  # [s] truncate the episode earlier than the trajectory
+        "host_speed": _OPT_FLOAT,  # [m/s] host's initial speed; nil: drawn from the seed
+        "gap": _OPT_FLOAT,  # [m] initial gap; nil: drawn from the seed
+        "set_speed": _OPT_FLOAT,  # [m/s] cruise set speed; nil: DEFAULT_SET_SPEED (33.5)
     },
     # client -> server: apply `action` at frame `frame` (answered with obs frame+1)
     "step": {
@@ -126,6 +131,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "terminated": _BOOL,  # collision or gap > limit
         "truncated": _BOOL,  # end of trajectory or duration
         "reason": _STR,  # "", "collision", "gap", "end"
+        "set_speed": _FLOAT,  # [m/s] cruise set speed (a driver input: a policy may use it)
         "image": _OPT_BIN,  # row-major uint8 pixels, or nil for image_format "none"
         "image_shape": _OPT_ARRAY,  # [height, width, channels] or nil
     },

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["SimError", "TrajectoryError", "ScenarioError"]
+__all__ = ["SimError", "TrajectoryError", "ScenarioError", "InitialConditionError"]
 
 
 class SimError(Exception):
@@ -15,3 +15,7 @@ class TrajectoryError(ValueError, SimError):
 
 class ScenarioError(ValueError, SimError):
     """An unknown scenario name."""
+
+
+class InitialConditionError(ValueError, SimError):
+    """A reset's host speed, gap or set speed outside its allowed range."""

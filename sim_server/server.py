@@ -240,7 +240,10 @@ class SimServer:
             self._send_error(addr, ErrorCode.BAD_RESET, f"duration {duration} must be > 0 s", episode=episode)
             return
         try:
-            state = self.world.reset(msg["scenario"], msg["seed"], msg["trajectory"], trace=trace, duration=duration)
+            state = self.world.reset(
+                msg["scenario"], msg["seed"], msg["trajectory"], trace=trace, duration=duration,
+                host_speed=msg["host_speed"], gap=msg["gap"], set_speed=msg["set_speed"],
+            )  # fmt: skip
         except SimError as exc:
             self._send_error(addr, ErrorCode.BAD_RESET, str(exc), episode=episode)
             return
@@ -298,6 +301,7 @@ class SimServer:
             "terminated": state.terminated,
             "truncated": state.truncated,
             "reason": state.reason,
+            "set_speed": state.set_speed,
             "image": image,
             "image_shape": shape,
         }

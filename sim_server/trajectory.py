@@ -6,7 +6,10 @@
 * EV: windows of real-world GPS speed traces (package data ``data/real_world``,
   CMAP 2007 survey; not the paper's non-public SR-91 Leaf data), linearly
   interpolated from 1 Hz and held inside Table 2's EV limits.
-* Any speed trace given as times and speeds.
+* Any speed trace given as times and speeds (a user's CSV): driven as given, not
+  held inside Table 2's bands, but refused beyond physical limits (negative or
+  above 70 m/s speeds, accelerations beyond 1 g between samples).
+* Lead scenarios (``stopped``, ``brake-stop``, ...): see :mod:`sim_server.scenarios`.
 """
 
 from __future__ import annotations
@@ -17,6 +20,13 @@ from importlib import resources
 
 import numpy as np
 
+from protocol.scenarios import (
+    LEAD_SCENARIOS,
+    TEST_TRAJECTORIES,
+    TRACE_ACCEL_LIMIT,
+    TRACE_SPEED_MAX,
+    TRAJECTORIES,
+)
 from sim_server.errors import ScenarioError, TrajectoryError
 
 __all__ = [
@@ -30,6 +40,7 @@ __all__ = [
     "ice_trajectory",
     "ev_window",
     "from_trace",
+    "user_trace",
     "build",
 ]
 
@@ -128,19 +139,7 @@ def _load_trace(name: str) -> tuple[np.ndarray, np.ndarray]:
     return data[:, 0], data[:, 1]
 
 
-def from_trace(t_s: np.ndarray, v: np.ndarray, dt: float, lim: Limits, duration: float | None = None) -> np.ndarray:
-    """Resample a speed trace to the physics rate and hold it inside ``lim``.
-
-    Args:
-        t_s: strictly increasing sample times [s].
-        v: speeds [m/s], finite and non-negative.
-        dt: physics step [s].
-        lim: the scenario's limits.
-        duration: how much of the trace to use [s]; all of it if None.
-
-    Raises:
-        TrajectoryError: naming the first bad sample.
-    """
+def _check_trace(t_s: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t_s = np.asarray(t_s, dtype=float)
     v = np.asarray(v, dtype=float)
     if t_s.ndim != 1 or t_s.shape != v.shape or len(t_s) < 2:
@@ -154,11 +153,65 @@ def from_trace(t_s: np.ndarray, v: np.ndarray, dt: float, lim: Limits, duration:
     bad = np.flatnonzero(np.diff(t_s) <= 0)
     if bad.size:
         raise TrajectoryError(f"trace time is not increasing at sample {bad[0] + 1}")
+    return t_s, v
+
+
+def _resample(t_s: np.ndarray, v: np.ndarray, dt: float, duration: float | None) -> np.ndarray:
     span = t_s[-1] - t_s[0]
     if duration is not None:
         span = min(span, duration)
     t = t_s[0] + np.arange(int(np.floor(span / dt + 1e-9)) + 1) * dt
-    return limit(np.interp(t, t_s, v), dt, lim)
+    return np.interp(t, t_s, v)
+
+
+def from_trace(t_s: np.ndarray, v: np.ndarray, dt: float, lim: Limits, duration: float | None = None) -> np.ndarray:
+    """Resample a speed trace to the physics rate and hold it inside ``lim``.
+
+    For the packaged real-world windows, which stand in for the paper's EV data
+    and so keep to its Table 2.
+
+    Args:
+        t_s: strictly increasing sample times [s].
+        v: speeds [m/s], finite and non-negative.
+        dt: physics step [s].
+        lim: the scenario's limits.
+        duration: how much of the trace to use [s]; all of it if None.
+
+    Raises:
+        TrajectoryError: naming the first bad sample.
+    """
+    t_s, v = _check_trace(t_s, v)
+    return limit(_resample(t_s, v, dt, duration), dt, lim)
+
+
+def user_trace(t_s: np.ndarray, v: np.ndarray, dt: float) -> np.ndarray:
+    """A user's lead trace, resampled to the physics rate and driven as given.
+
+    Linear interpolation between samples, so the lead's acceleration is the
+    trace's own. No scenario band applies (a 0-27 m/s cycle stays one); a trace a
+    car cannot drive is refused instead.
+
+    Args:
+        t_s: strictly increasing sample times [s].
+        v: speeds [m/s], in 0..TRACE_SPEED_MAX.
+        dt: physics step [s].
+
+    Raises:
+        TrajectoryError: one line naming the first bad sample and the limit.
+    """
+    t_s, v = _check_trace(t_s, v)
+    bad = np.flatnonzero(v > TRACE_SPEED_MAX)
+    if bad.size:
+        raise TrajectoryError(f"trace sample {bad[0]} has speed {v[bad[0]]:g} m/s, above the {TRACE_SPEED_MAX:g} m/s limit")
+    a = np.diff(v) / np.diff(t_s)
+    bad = np.flatnonzero(np.abs(a) > TRACE_ACCEL_LIMIT)
+    if bad.size:
+        i = int(bad[0])
+        raise TrajectoryError(
+            f"trace samples {i}-{i + 1} accelerate at {a[i]:.3g} m/s^2, beyond the physical limit of "
+            f"+-{TRACE_ACCEL_LIMIT:g} m/s^2 (1 g)"
+        )
+    return _resample(t_s, v, dt, None)
 
 
 def ev_window(name: str, start: float, duration: float, dt: float) -> np.ndarray:
@@ -204,7 +257,8 @@ def build(
 
     Args:
         scenario: "ice" or "ev".
-        trajectory: "test-1".."test-4", "random" (drawn from ``rng``) or "trace".
+        trajectory: "test-1".."test-4", "random" (drawn from ``rng``) or "trace";
+            lead scenarios are built by :mod:`sim_server.scenarios`.
         rng: the episode's generator.
         dt: physics step [s].
         trace: (times [s], speeds [m/s]) when ``trajectory == "trace"``.
@@ -218,16 +272,18 @@ def build(
     if trajectory == "trace":
         if trace is None:
             raise TrajectoryError("trajectory 'trace' needs trace times and speeds")
-        return from_trace(trace[0], trace[1], dt, LIMITS[scenario])
+        return user_trace(trace[0], trace[1], dt)
     if trajectory == "random":
         if scenario == "ice":
             a = rng.choice(np.array([-1.0, 1.0]), size=10)
             w = rng.uniform(0.0, 1.0, size=10)
             return ice_trajectory(a, w, RANDOM_DURATION, dt)
         return _random_ev_window(rng, RANDOM_DURATION, dt)
-    if trajectory in ICE_TEST_PARAMS:
+    if trajectory in TEST_TRAJECTORIES:
         return _test_trajectory(scenario, trajectory, dt).copy()
-    raise TrajectoryError(f"unknown trajectory {trajectory!r}; expected test-1..test-4, random or trace")
+    if trajectory in LEAD_SCENARIOS:
+        raise TrajectoryError(f"lead scenario {trajectory!r} is built by sim_server.scenarios, not trajectory.build")
+    raise TrajectoryError(f"unknown trajectory {trajectory!r}; expected one of {', '.join(TRAJECTORIES)} or trace")
 
 
 @lru_cache(maxsize=16)

@@ -1,4 +1,4 @@
-"""Longitudinal vehicle model: normalised force to acceleration, speed never negative."""
+"""Longitudinal vehicle model: normalised force to acceleration, speed in [0, set speed]."""
 
 from __future__ import annotations
 
@@ -24,6 +24,11 @@ def accel_of_force(u: float) -> float:
     return u * A_MAX if u >= 0.0 else -u * A_MIN
 
 
-def advance_speed(v: float, a: float, dt: float) -> float:
-    """Speed [m/s] after ``dt`` [s] at acceleration ``a`` [m/s^2], clamped at 0."""
-    return max(0.0, v + a * dt)
+def advance_speed(v: float, a: float, dt: float, v_max: float = math.inf) -> float:
+    """Speed [m/s] after ``dt`` [s] at acceleration ``a`` [m/s^2], clamped to [0, v_max].
+
+    ``v_max`` is the cruise set speed: the host's speed limiter, like a production
+    ACC's, cuts the commanded acceleration so the speed never passes it. Braking
+    is never limited.
+    """
+    return min(max(0.0, v + a * dt), v_max)

@@ -6,6 +6,13 @@ car's footprint; pymunk detects the host's collisions with any other car.
 
 The host is a dynamic body whose velocity the longitudinal model sets every physics
 step; the lead and traffic are kinematic bodies that follow their speed profiles.
+
+The host has a speed limiter at the cruise set speed (default 33.5 m/s): whatever
+the controller commands, the host never drives faster. It lives here, in the
+vehicle, rather than in each controller, as in a production ACC, where the set
+speed caps the commanded acceleration below the controller. So every controller,
+a learned one included, is held to it, and the guarantee needs no trust in the
+policy. The set speed is in every observation: it is the driver's input.
 Collision response is switched off: a collision ends the episode, so only its
 detection matters.
 """
@@ -17,14 +24,23 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from protocol.scenarios import (
+    DEFAULT_SET_SPEED,
+    GAP_LIMIT,
+    LEAD_SCENARIOS,
+    SCENARIOS,
+    TRACE,
+    check_initial,
+)
+from sim_server import scenarios as lead_scenarios
 from sim_server import trajectory as traj
+from sim_server.errors import InitialConditionError, ScenarioError
 from sim_server.scene import CAR_LENGTH, CAR_WIDTH, LANE_WIDTH, CarView, SceneState
 from sim_server.vehicle import accel_of_force, advance_speed
 
-__all__ = ["WorldConfig", "WorldState", "World"]
+__all__ = ["WorldConfig", "WorldState", "World", "GAP_LIMIT"]
 
 HOST, LEAD, TRAFFIC = 1, 2, 3  # pymunk collision types
-GAP_LIMIT = 300.0  # [m] the episode terminates beyond this gap (paper Sec. 3)
 BRAKE_LIGHT_ACCEL = -0.3  # [m/s^2] lead brake lights come on below this
 TRAFFIC_AHEAD = 250.0  # [m] traffic is kept within this window around the host
 TRAFFIC_BEHIND = 100.0  # [m]
@@ -38,7 +54,7 @@ class WorldConfig:
     physics_dt: float = 0.02  # [s] paper Sec. 4
     substeps: int = 5  # physics steps per control step: 0.1 s control period (10 Hz)
     traffic_per_lane: int = 3  # cars in each adjacent and oncoming lane
-    randomize_light: bool = True  # draw the sun per episode for random trajectories
+    randomize_light: bool = True  # draw the sun per episode for random trajectories and lead scenarios
 
     @property
     def control_period(self) -> float:
@@ -62,6 +78,7 @@ class WorldState:
     terminated: bool
     truncated: bool
     reason: str  # "", "collision", "gap" or "end"
+    set_speed: float  # [m/s] the cruise set speed the host's limiter holds
 
 
 def _car(space: pymunk.Space, kind: int, x: float, y: float, body_type: int) -> pymunk.Body:
@@ -97,24 +114,58 @@ class World:
         *,
         trace: tuple[np.ndarray, np.ndarray] | None = None,
         duration: float | None = None,
+        host_speed: float | None = None,
+        gap: float | None = None,
+        set_speed: float | None = None,
     ) -> WorldState:
         """Start an episode; returns frame 0.
 
+        Args:
+            scenario: "ice" or "ev".
+            seed: episode seed (mixed with the salt).
+            trajectory: a name of :data:`protocol.scenarios.TRAJECTORIES` or "trace".
+            trace: (times [s], speeds [m/s]) for "trace".
+            duration: truncate the episode after this many seconds.
+            host_speed: host's initial speed [m/s]; default drawn (Table 2 or the
+                lead scenario), for a trace the lead's first speed. Never above
+                the set speed: a drawn speed above it starts at the set speed.
+            gap: initial gap [m]; default drawn.
+            set_speed: cruise set speed [m/s]; default 33.5.
+
         Raises:
-            ScenarioError, TrajectoryError: from :func:`trajectory.build`.
+            ScenarioError, TrajectoryError: unknown names or a bad trace.
+            InitialConditionError: host speed, gap or set speed out of range.
         """
         cfg = self.config
+        if scenario not in SCENARIOS:
+            raise ScenarioError(f"unknown scenario {scenario!r}; expected one of {list(SCENARIOS)}")
+        try:
+            check_initial(host_speed=host_speed, gap=gap, set_speed=set_speed)
+        except ValueError as exc:
+            raise InitialConditionError(str(exc)) from None
+        v_set = DEFAULT_SET_SPEED if set_speed is None else float(set_speed)
         rng = np.random.default_rng([self.salt & 0xFFFFFFFF, seed & 0xFFFFFFFFFFFFFFFF])
-        self.v_lead_profile = traj.build(scenario, trajectory, rng, cfg.physics_dt, trace=trace)
-        lim = traj.LIMITS[scenario]
+        if trajectory in LEAD_SCENARIOS:
+            episode = lead_scenarios.build(trajectory, rng, cfg.physics_dt)
+            self.v_lead_profile = episode.v_lead
+            v_host, gap0 = episode.v_host, episode.gap
+        else:
+            # Draw order kept as it always was: the paper's runs stay bit-identical.
+            self.v_lead_profile = traj.build(scenario, trajectory, rng, cfg.physics_dt, trace=trace)
+            lim = traj.LIMITS[scenario]
+            v_host = float(rng.uniform(*lim.v0_host))
+            gap0 = float(rng.uniform(*lim.gap0))
+            if trajectory == TRACE:
+                v_host = float(self.v_lead_profile[0])  # a trace starting at 0 starts the host standing
+        v_host = min(v_host if host_speed is None else float(host_speed), v_set)
+        gap0 = gap0 if gap is None else float(gap)
+        self.set_speed = v_set
         steps = len(self.v_lead_profile) - 1
         if duration is not None:
             steps = min(steps, int(round(duration / cfg.physics_dt)))
         self.last_frame = steps // cfg.substeps
-        v_host = float(rng.uniform(*lim.v0_host))
-        gap = float(rng.uniform(*lim.gap0))
         self.scenario, self.seed = scenario, seed
-        if cfg.randomize_light and trajectory == "random":
+        if cfg.randomize_light and (trajectory == "random" or trajectory in LEAD_SCENARIOS):
             self.light = (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(0.35, 1.2)))
         else:
             self.light = (0.6, 0.8)
@@ -124,7 +175,7 @@ class World:
         space.on_collision(HOST, TRAFFIC, begin=self._on_collision)
         self.host = _car(space, HOST, 0.0, 0.0, pymunk.Body.DYNAMIC)
         self.host.velocity = (v_host, 0.0)
-        self.lead = _car(space, LEAD, gap + CAR_LENGTH, 0.0, pymunk.Body.KINEMATIC)
+        self.lead = _car(space, LEAD, gap0 + CAR_LENGTH, 0.0, pymunk.Body.KINEMATIC)
         self.lead.velocity = (float(self.v_lead_profile[0]), 0.0)
         self._spawn_traffic(rng, float(np.mean(self.v_lead_profile)))
         self._rng = rng
@@ -187,7 +238,7 @@ class World:
         for _ in range(cfg.substeps):
             self.step_index += 1
             steps += 1
-            v = advance_speed(host.velocity.x, a_cmd, dt)
+            v = advance_speed(host.velocity.x, a_cmd, dt, self.set_speed)
             host.velocity = (v, 0.0)
             lead.velocity = (float(profile[self.step_index]), 0.0)
             self.space.step(dt)
@@ -224,6 +275,7 @@ class World:
             terminated=bool(reason),
             truncated=truncated,
             reason=reason or ("end" if truncated else ""),
+            set_speed=self.set_speed,
         )
 
     def scene(self) -> SceneState:

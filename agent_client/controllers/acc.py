@@ -17,7 +17,18 @@ collision-avoidance mode), a kinematic limit caps the command while closing in:
 the constant deceleration that matches the lead's speed d_min before it. It engages
 only when the time to reach d_min at the current closing speed is under
 ``ttc_engage`` (6 s), so ordinary following, and all of the ICE runs, follow
-eq. 1-3 alone.
+eq. 1-3 alone. Behind a standing lead the limit aims at d_safe instead of d_min:
+matching a standing car's speed means stopping, and the ACC's standstill
+distance is d_safe (aiming at d_min left it 1.9 m behind a stopped car).
+
+**Set speed.** Like a production ACC, it cruises at the driver's set speed when
+the lead is far, in speed-control mode, and never commands more:
+
+    a_cmd = min(a_ref, k_speed * (v_set - v_host))
+
+k_speed = 0.4 1/s is SUMO's ACC speed-control gain (``speedControlGain``, after
+Milanes & Shladover). The set speed comes with every observation; the vehicle's
+own limiter holds it as well.
 """
 
 from __future__ import annotations
@@ -25,10 +36,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from protocol.scenarios import DEFAULT_SET_SPEED
+
 __all__ = ["AccController", "force_of_accel"]
 
 A_MIN = -5.5  # [m/s^2] acceleration at u = -1 (the simulator's force map)
 A_MAX = 3.5  # [m/s^2] acceleration at u = +1
+V_STANDING = 0.1  # [m/s] a lead slower than this stands: stop d_safe behind it
 
 
 def force_of_accel(a: float) -> float:
@@ -47,6 +61,7 @@ class AccController:
     d_safe: float = 5.0  # [m] minimum desired gap
     d_min: float = 2.0  # [m] closest approach the collision-avoidance limit aims for
     ttc_engage: float = 6.0  # [s] the limit engages below this time to reach d_min
+    k_speed: float = 0.4  # [1/s] speed-control gain toward the set speed (SUMO's ACC)
 
     name = "acc"
 
@@ -57,12 +72,22 @@ class AccController:
     def reset(self) -> None:
         """Nothing to forget between episodes."""
 
+    def cruise_accel(self, v_host: float, set_speed: float) -> float:
+        """Speed-control acceleration [m/s^2] toward the set speed [m/s]."""
+        return self.k_speed * (set_speed - v_host)
+
     def __call__(self, obs: dict[str, Any]) -> float:
-        """The force u for an observation with ``gap``, ``v_host``, ``v_lead`` and ``a_lead``."""
+        """The force u for an observation with ``gap``, ``v_host``, ``v_lead``, ``a_lead`` and ``set_speed``.
+
+        An observation without ``set_speed`` (a hand-made one) cruises at the
+        default 33.5 m/s.
+        """
         gap, v, v_lead = obs["gap"], obs["v_host"], obs["v_lead"]
         a_ref = self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_lead - v)
+        a_ref = min(a_ref, self.cruise_accel(v, obs.get("set_speed", DEFAULT_SET_SPEED)))
         closing = v - v_lead  # [m/s]
-        if closing > 0.0 and gap - self.d_min < self.ttc_engage * closing:
-            a_safe = min(obs.get("a_lead", 0.0), 0.0) - closing**2 / (2.0 * max(gap - self.d_min, 0.1))
+        d_aim = self.d_safe if v_lead < V_STANDING else self.d_min
+        if closing > 0.0 and gap - d_aim < self.ttc_engage * closing:
+            a_safe = min(obs.get("a_lead", 0.0), 0.0) - closing**2 / (2.0 * max(gap - d_aim, 0.1))
             a_ref = min(a_ref, a_safe)
         return force_of_accel(a_ref)

@@ -14,7 +14,9 @@ A human-file is ASCII text::
 * Line 2 holds ``key=value`` pairs, separated by spaces: ``scenario``, ``trajectory``
   (a test name, ``random``, or a trace CSV's file name; URL-quoted), ``seed``,
   ``control_period`` [s], ``protocol`` (the wire protocol version) and
-  ``duration`` [s] or ``none``. Unknown keys are kept and ignored.
+  ``duration`` [s] or ``none``. Optional: ``set_speed`` [m/s] (absent: the default
+  33.5), ``host_speed`` [m/s] and ``gap`` [m] (absent: drawn from the seed); a
+  replay must ask for the same. Unknown keys are kept and ignored.
 * Further ``#`` lines are comments (e.g. which input device drove).
 * The column row ``frame,force``, then one row per control step: the force u in
   [-1, 1] applied at frame ``frame`` (the step from frame n to n + 1), frames 0, 1,
@@ -33,6 +35,7 @@ from urllib.parse import quote, unquote
 
 from agent_client.errors import InputFileError
 from protocol.messages import PROTOCOL_VERSION
+from protocol.scenarios import DEFAULT_SET_SPEED, TRAJECTORIES
 
 __all__ = [
     "MAGIC",
@@ -44,6 +47,7 @@ __all__ = [
     "HumanFileController",
     "RecordingController",
     "trajectory_label",
+    "start_extra",
 ]
 
 MAGIC = "# vacc-human-file v1"
@@ -51,11 +55,21 @@ COLUMNS = "frame,force"
 PADS = ("error", "hold", "zero")
 REQUIRED_KEYS = ("scenario", "trajectory", "seed", "control_period", "protocol")
 PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not strings
+# Protocol 2 only added reset and obs fields (initial conditions, set speed), so a
+# protocol-1 recording replays the same run below the default 33.5 m/s set speed.
+REPLAYABLE_PROTOCOLS = (1, PROTOCOL_VERSION)
+START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
+
+
+def start_extra(*, set_speed: float | None, host_speed: float | None, gap: float | None) -> dict[str, str]:
+    """Header items recording a run's set speed [m/s] and given initial host speed [m/s] and gap [m]."""
+    values = {"set_speed": DEFAULT_SET_SPEED if set_speed is None else set_speed, "host_speed": host_speed, "gap": gap}
+    return {k: repr(float(v)) for k, v in values.items() if v is not None}
 
 
 def trajectory_label(trajectory: str) -> str:
     """How a trajectory is named in a header: test names as they are, a trace CSV by file name."""
-    if trajectory in ("test-1", "test-2", "test-3", "test-4", "random"):
+    if trajectory in TRAJECTORIES:
         return trajectory
     return Path(trajectory).name
 
@@ -96,8 +110,21 @@ class HumanFile:
     header_line: int  # line number of the key=value line (for errors)
     last_line: int  # line number of the last row
 
-    def check(self, *, scenario: str, trajectory: str, seed: int, control_period: float | None = None) -> None:
+    def check(
+        self,
+        *,
+        scenario: str,
+        trajectory: str,
+        seed: int,
+        control_period: float | None = None,
+        set_speed: float | None = None,
+        host_speed: float | None = None,
+        gap: float | None = None,
+    ) -> None:
         """Refuse a replay against something other than what was recorded.
+
+        ``set_speed`` None means the default; ``host_speed`` and ``gap`` None mean
+        drawn from the seed.
 
         Raises:
             InputFileError: naming the file, the header line and what differs.
@@ -112,8 +139,14 @@ class HumanFile:
         ):
             if have != want:
                 raise InputFileError(f"{where}: recorded with {key}={have}, but {option} {want} was requested")
-        if h.protocol != PROTOCOL_VERSION:
+        if h.protocol not in REPLAYABLE_PROTOCOLS:
             raise InputFileError(f"{where}: recorded with protocol={h.protocol}, this client speaks protocol {PROTOCOL_VERSION}")
+        asked = start_extra(set_speed=set_speed, host_speed=host_speed, gap=gap)
+        recorded = {"set_speed": repr(DEFAULT_SET_SPEED), **{k: v for k, v in h.extra.items() if k in dict(START_KEYS)}}
+        for key, option in START_KEYS:
+            if recorded.get(key) != asked.get(key):
+                was, now = recorded.get(key, "none (drawn)"), asked.get(key, "none (drawn)")
+                raise InputFileError(f"{where}: recorded with {key}={was}, but {option} {now} was requested")
         if control_period is not None and abs(h.control_period - control_period) > PERIOD_TOLERANCE:
             raise InputFileError(
                 f"{where}: recorded with control_period={h.control_period!r} s, the server steps {control_period!r} s"

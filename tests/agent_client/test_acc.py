@@ -7,6 +7,14 @@ from agent_client.drive import drive_episode
 from agent_client.launcher import local_server
 from agent_client.session import Session
 
+SET = 20.0  # [m/s] a set speed below the catch-up leads (24-30 m/s)
+
+
+@pytest.fixture(scope="module")
+def server():
+    with local_server() as addr:
+        yield addr
+
 
 def test_force_of_accel_inverts_the_force_map():
     assert force_of_accel(3.5) == 1.0 and force_of_accel(-5.5) == -1.0
@@ -16,7 +24,7 @@ def test_force_of_accel_inverts_the_force_map():
 
 def test_eq_1_to_3_while_following():
     acc = AccController()
-    obs = {"gap": 60.0, "v_host": 30.0, "v_lead": 31.0, "a_lead": -1.0}
+    obs = {"gap": 60.0, "v_host": 30.0, "v_lead": 31.0, "a_lead": -1.0, "set_speed": 40.0}
     a_ref = 0.23 * (60.0 - 1.8 * 30.0) + 0.07 * 1.0  # eq. 1 with d_ref = v t_gap (eq. 2)
     assert acc(obs) == pytest.approx(a_ref / 3.5)
     assert acc.reference_gap(1.0) == 5.0  # d_safe at low speed (eq. 3)
@@ -24,9 +32,9 @@ def test_eq_1_to_3_while_following():
 
 def test_collision_avoidance_limit_engages_only_when_closing_fast():
     acc = AccController()
-    calm = {"gap": 50.0, "v_host": 31.0, "v_lead": 30.0, "a_lead": -2.0}  # 48 s to reach d_min
+    calm = {"gap": 50.0, "v_host": 31.0, "v_lead": 30.0, "a_lead": -2.0, "set_speed": 33.5}  # 48 s to reach d_min
     assert acc(calm) == pytest.approx(force_of_accel(0.23 * (50 - 1.8 * 31) + 0.07 * -1.0))
-    urgent = {"gap": 12.0, "v_host": 9.0, "v_lead": 6.0, "a_lead": -1.5}  # 3.3 s
+    urgent = {"gap": 12.0, "v_host": 9.0, "v_lead": 6.0, "a_lead": -1.5, "set_speed": 33.5}  # 3.3 s
     a_safe = -1.5 - 3.0**2 / (2 * (12.0 - 2.0))
     assert acc(urgent) == pytest.approx(force_of_accel(a_safe))
 
@@ -38,3 +46,35 @@ def test_no_collision_on_the_test_trajectories(scenario):
             summary = drive_episode(s, AccController(), scenario=scenario, seed=0, trajectory=traj)
             assert not summary.collision, traj
             assert summary.reason == "end" and summary.sim_time == pytest.approx(240.0)
+
+
+def test_set_speed_caps_the_command_in_speed_control_mode():
+    acc = AccController()
+    far = {"gap": 250.0, "v_host": 25.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 30.0}
+    assert acc(far) == pytest.approx(force_of_accel(0.4 * (30.0 - 25.0)))  # SUMO's speed-control gain
+    at_set = {**far, "v_host": 30.0}
+    assert acc(at_set) == 0.0
+    assert acc({**far, "set_speed": 40.0}) == 1.0  # the gap law wants more than full throttle
+
+
+def test_cruises_at_the_set_speed_when_the_lead_is_far(server):
+    speeds: list[float] = []
+    with Session(server) as s:
+        summary = drive_episode(
+            s, AccController(), scenario="ev", seed=0, trajectory="catch-up", set_speed=SET,
+            on_step=lambda obs: speeds.append(obs["v_host"]),
+        )  # fmt: skip
+    assert not summary.collision
+    assert max(speeds) <= SET
+    # 10 s after the start it cruises at the set speed while the lead pulls away.
+    assert speeds[100:] == pytest.approx([SET] * len(speeds[100:]), abs=0.05)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_stops_d_safe_behind_a_stopped_car(server, seed):
+    last: list[dict] = []
+    with Session(server) as s:
+        summary = drive_episode(s, AccController(), scenario="ev", seed=seed, trajectory="stopped", on_step=last.append)
+    assert not summary.collision and last[-1]["v_host"] == 0.0
+    # It comes to rest at its standstill distance d_safe = 5 m (it stopped 1.9 m short before).
+    assert last[-1]["gap"] == pytest.approx(AccController().d_safe, abs=0.5)

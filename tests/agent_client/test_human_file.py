@@ -16,7 +16,9 @@ from agent_client.controllers.human_file import (
     read_human_file,
 )
 from agent_client.errors import InputFileError
+from protocol.messages import PROTOCOL_VERSION
 
+# protocol=1: a recording from before protocol 2 still replays (only fields were added).
 HEADER = "# scenario=ice trajectory=test-1 seed=0 control_period=0.1 protocol=1 duration=1.0"
 
 
@@ -38,10 +40,10 @@ def test_round_trip_through_the_recorder(tmp_path):
             rec.write(i, u)
     hf = read_human_file(tmp_path / "r.csv")
     assert hf.header.scenario == "ev" and hf.header.trajectory == "my trace.csv" and hf.header.seed == 7
-    assert hf.header.control_period == 0.1 and hf.header.duration is None and hf.header.protocol == 1
+    assert hf.header.control_period == 0.1 and hf.header.duration is None and hf.header.protocol == PROTOCOL_VERSION
     assert list(hf.forces) == forces  # exact: written with repr
     text = (tmp_path / "r.csv").read_text()
-    assert text.startswith(MAGIC + "\n# scenario=ev trajectory=my%20trace.csv seed=7 control_period=0.1 protocol=1")
+    assert text.startswith(MAGIC + f"\n# scenario=ev trajectory=my%20trace.csv seed=7 control_period=0.1 protocol={PROTOCOL_VERSION}")
     assert "\nframe,force\n0,0.0\n" in text
 
 
@@ -89,6 +91,9 @@ def test_bad_files_name_file_and_line(tmp_path, case):
         ({"trajectory": "test-2"}, "trajectory=test-1, but --trajectory test-2"),
         ({"seed": 3}, "seed=0, but --seed 3"),
         ({"control_period": 0.2}, "control_period=0.1 s, the server steps 0.2 s"),
+        ({"set_speed": 30.0}, "set_speed=33.5, but --set-speed 30.0"),
+        ({"host_speed": 5.0}, "host_speed=none .drawn., but --host-speed 5.0"),
+        ({"gap": 40.0}, "gap=none .drawn., but --gap 40.0"),
     ],
 )
 def test_header_must_match_the_request(tmp_path, request_, words):
@@ -136,7 +141,8 @@ def test_cli_replay_of_a_recording_is_byte_identical_and_pads(tmp_path):
     live, human, again = tmp_path / "live.csv", tmp_path / "human.csv", tmp_path / "again.csv"
     result = _run("--controller", "hdm", "--duration", "20", "--log", str(live), "--record", str(human), "--quiet")
     assert result.exit_code == 0, result.output
-    assert human.read_text().startswith(MAGIC + "\n# scenario=ice trajectory=test-1 seed=0 control_period=0.1 protocol=1 duration=20.0\n")
+    header = f"\n# scenario=ice trajectory=test-1 seed=0 control_period=0.1 protocol={PROTOCOL_VERSION} duration=20.0 set_speed=33.5\n"
+    assert human.read_text().startswith(MAGIC + header)
     # The replay takes its duration from the header.
     result = _run("--controller", "human-file", "--human-file", str(human), "--log", str(again), "--quiet")
     assert result.exit_code == 0, result.output

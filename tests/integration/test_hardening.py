@@ -17,7 +17,7 @@ from agent_client.session import Session
 from protocol import codec
 from protocol.faults import FaultConfig
 from protocol.fragment import HEADER, MAGIC, fragment
-from protocol.messages import ErrorCode
+from protocol.messages import PROTOCOL_VERSION, ErrorCode
 
 
 def rss_bytes(pid: int) -> int:
@@ -42,9 +42,9 @@ def hostile_datagrams(rng: np.random.Generator, n: int, token: bytes) -> list[by
         elif kind == 2:
             out.append(HEADER.pack(MAGIC, int(rng.integers(2, 255)), 0, msg_id, 0, 1, 3) + b"abc")  # bad version
         elif kind == 3:
-            out.append(HEADER.pack(MAGIC, 1, 0, msg_id, 0, 64, 4_000_000) + rng.bytes(1400))  # never completes
+            out.append(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, msg_id, 0, 64, 4_000_000) + rng.bytes(1400))  # never completes
         elif kind == 4:
-            out.append(HEADER.pack(MAGIC, 1, 0, msg_id, 0, 1, 2**32 - 1) + b"x")  # huge declared length
+            out.append(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, msg_id, 0, 1, 2**32 - 1) + b"x")  # huge declared length
         elif kind == 5:
             out.append(fragment(b"\x93\x01\x02\x03", msg_id)[0])  # valid msgpack, wrong shape
         elif kind == 6:
@@ -57,7 +57,7 @@ def hostile_datagrams(rng: np.random.Generator, n: int, token: bytes) -> list[by
             out.append(fragment(codec.encode(hello), msg_id)[0])  # bad protocol version in a hello
         elif kind == 10:
             # Overlapping and repeated fragments of one message with changing lengths.
-            out.append(HEADER.pack(MAGIC, 1, 0, 7, int(rng.integers(3)), 3, 3000) + rng.bytes(int(rng.integers(1, 1500))))
+            out.append(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 7, int(rng.integers(3)), 3, 3000) + rng.bytes(int(rng.integers(1, 1500))))
         else:
             out.append(fragment(codec.encode({**good_step, "session": rng.bytes(16)}), msg_id)[0])  # foreign token
     return out
@@ -164,7 +164,7 @@ def test_100k_fragment_starts_keep_memory_bounded(spawn):
         deadline = time.monotonic() + 120
         try:
             for msg_id in range(100_000):
-                sock.sendto(HEADER.pack(MAGIC, 1, 0, msg_id, 0, 100, 140_000) + body, addr)
+                sock.sendto(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, msg_id, 0, 100, 140_000) + body, addr)
                 if msg_id % 2000 == 0:
                     session.heartbeat()  # the real client is served throughout
                 if time.monotonic() > deadline:

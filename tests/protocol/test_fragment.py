@@ -6,13 +6,14 @@ import pytest
 from protocol import codec, fragment
 from protocol.errors import DecodeError, FragmentError, LimitError, VersionError
 from protocol.fragment import HEADER, HEADER_BYTES, MAGIC, Reassembler
+from protocol.messages import PROTOCOL_VERSION
 
 PEER = ("127.0.0.1", 1)
 
 
 def image_message() -> bytes:
     pixels = np.random.default_rng(0).integers(0, 256, size=(400, 400, 3), dtype=np.uint8)
-    msg = {"type": "obs", "episode": 0, "frame": 1, "t": 0.1, "v_host": 1.0, "v_lead": 1.0, "gap": 1.0, "accel": 0.0, "a_lead": 0.0, "force": 0.0, "collision": False, "terminated": False, "truncated": False, "reason": "", "image": pixels.tobytes(), "image_shape": [400, 400, 3]}  # fmt: skip
+    msg = {"type": "obs", "episode": 0, "frame": 1, "t": 0.1, "v_host": 1.0, "v_lead": 1.0, "gap": 1.0, "accel": 0.0, "a_lead": 0.0, "force": 0.0, "collision": False, "terminated": False, "truncated": False, "reason": "", "set_speed": 33.5, "image": pixels.tobytes(), "image_shape": [400, 400, 3]}  # fmt: skip
     return codec.encode(msg)
 
 
@@ -60,34 +61,34 @@ def test_header_checks():
     with pytest.raises(VersionError):
         fragment.parse_header(good[:2] + b"\x09" + good[3:])
     with pytest.raises(FragmentError):  # index >= count
-        fragment.parse_header(HEADER.pack(MAGIC, 1, 0, 1, 3, 3, 3) + b"abc")
+        fragment.parse_header(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 1, 3, 3, 3) + b"abc")
     with pytest.raises(FragmentError):  # single fragment, truncated body
         fragment.parse_header(good[:-1])
     with pytest.raises(LimitError):  # huge declared length
-        fragment.parse_header(HEADER.pack(MAGIC, 1, 0, 1, 0, 2, 2**31) + b"abc")
+        fragment.parse_header(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 1, 0, 2, 2**31) + b"abc")
 
 
 def test_repeated_fragment_with_other_length_drops_assembly():
     r = Reassembler()
-    r.feed(HEADER.pack(MAGIC, 1, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
+    r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
     with pytest.raises(FragmentError):
-        r.feed(HEADER.pack(MAGIC, 1, 0, 9, 0, 3, 2500) + b"x" * 900, PEER, 0.0)
+        r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 0, 3, 2500) + b"x" * 900, PEER, 0.0)
     assert r.pending == 0
 
 
 def test_changed_count_drops_assembly():
     r = Reassembler()
-    r.feed(HEADER.pack(MAGIC, 1, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
+    r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
     with pytest.raises(FragmentError):
-        r.feed(HEADER.pack(MAGIC, 1, 0, 9, 1, 4, 2500) + b"x" * 700, PEER, 0.0)
+        r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 1, 4, 2500) + b"x" * 700, PEER, 0.0)
 
 
 def test_inconsistent_lengths_detected_at_join():
     r = Reassembler()
-    r.feed(HEADER.pack(MAGIC, 1, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
-    r.feed(HEADER.pack(MAGIC, 1, 0, 9, 1, 3, 2500) + b"x" * 900, PEER, 0.0)
+    r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 0, 3, 2500) + b"x" * 1000, PEER, 0.0)
+    r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 1, 3, 2500) + b"x" * 900, PEER, 0.0)
     with pytest.raises(FragmentError):
-        r.feed(HEADER.pack(MAGIC, 1, 0, 9, 2, 3, 2500) + b"x" * 600, PEER, 0.0)
+        r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, 9, 2, 3, 2500) + b"x" * 600, PEER, 0.0)
 
 
 def test_unfinished_messages_expire():
@@ -102,7 +103,7 @@ def test_unfinished_messages_expire():
 def test_pending_count_and_bytes_are_capped():
     r = Reassembler(max_pending=4, max_bytes=10_000)
     for msg_id in range(100):
-        r.feed(HEADER.pack(MAGIC, 1, 0, msg_id, 0, 10, 14000) + b"x" * 1400, PEER, 0.0)
+        r.feed(HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, msg_id, 0, 10, 14000) + b"x" * 1400, PEER, 0.0)
         assert r.pending <= 4 and r.pending_bytes <= 10_000
     assert r.evicted >= 96
 

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from protocol import codec, messages
 from protocol.errors import ProtocolError
 from protocol.fragment import HEADER, MAGIC, Reassembler, fragment
+from protocol.messages import PROTOCOL_VERSION
 
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -21,7 +22,7 @@ msgpack_values = st.recursive(
 VALID = [
     codec.encode({"type": "step", "session": b"\x01" * 16, "episode": 0, "frame": 3, "action": 0.5}),
     codec.encode({"type": "hello", "version": 1, "nonce": b"12345678", "client": "c", "image_format": "gray", "image_width": 200, "image_height": 200, "max_datagram": 65000}),
-    codec.encode({"type": "reset", "session": b"\x01" * 16, "episode": 1, "scenario": "ev", "seed": 2, "trajectory": "trace", "trace_t": [0.0, 1.0], "trace_v": [3.0, 4.0], "duration": None}),
+    codec.encode({"type": "reset", "session": b"\x01" * 16, "episode": 1, "scenario": "ev", "seed": 2, "trajectory": "trace", "trace_t": [0.0, 1.0], "trace_v": [3.0, 4.0], "duration": None, "host_speed": 0.0, "gap": None, "set_speed": None}),
 ]  # fmt: skip
 
 
@@ -73,7 +74,7 @@ def test_mutated_messages_decode_or_raise_protocol_errors(data, edits):
 def test_reassembler_survives_hostile_fragment_headers(frags):
     r = Reassembler(max_pending=8, max_bytes=4000, timeout=1.0)
     for i, (msg_id, index, count, total, body) in enumerate(frags):
-        datagram = HEADER.pack(MAGIC, 1, 0, msg_id, index, count, total % (1 << 23)) + body
+        datagram = HEADER.pack(MAGIC, PROTOCOL_VERSION, 0, msg_id, index, count, total % (1 << 23)) + body
         try:
             r.feed(datagram, ("127.0.0.1", 1), i * 0.1)
         except ProtocolError:

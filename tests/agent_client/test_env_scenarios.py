@@ -1,0 +1,55 @@
+"""The gym env with lead scenarios and the set-speed / initial-condition reset options."""
+
+from __future__ import annotations
+
+import pytest
+
+from agent_client.env import VisionACCEnv
+from agent_client.launcher import local_server
+
+
+@pytest.fixture(scope="module")
+def server():
+    with local_server() as addr:
+        yield addr
+
+
+def test_lead_scenario_and_reset_options(server):
+    env = VisionACCEnv(server, trajectory="stopped", episode_seconds=2.0, set_speed=20.0)
+    try:
+        _, info = env.reset(seed=1)
+        assert info["v_lead"] == 0.0 and info["set_speed"] == 20.0
+        _, info = env.reset(options={"seed": 1, "trajectory": "catch-up", "host_speed": 4.0, "gap": 70.0, "set_speed": 25.0})
+        assert info["v_host"] == 4.0 and info["gap"] == pytest.approx(70.0) and info["set_speed"] == 25.0
+        for _ in range(5):
+            *_, info = env.step(20)  # full throttle
+        assert info["v_host"] == pytest.approx(4.0 + 3.5 * 0.5)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        ({"trajectory": "parked"}, "unknown trajectory 'parked'"),
+        ({"host_speed": 40.0}, "host speed 40.0 m/s is outside 0..33.5 m/s"),
+        ({"gap": 0.0}, "gap 0.0 m is outside"),
+        ({"set_speed": 99.0}, "set speed 99.0 m/s is outside 1..50 m/s"),
+        ({"sett_speed": 20.0}, "unknown reset options ['sett_speed']"),
+    ],
+)
+def test_bad_reset_options_are_clear_errors(server, options, words):
+    env = VisionACCEnv(server, episode_seconds=1.0)
+    try:
+        with pytest.raises(ValueError) as err:
+            env.reset(seed=0, options=options)
+        assert words in str(err.value)
+    finally:
+        env.close()
+
+
+def test_bad_constructor_arguments():
+    with pytest.raises(ValueError, match="unknown trajectory 'test-9'"):
+        VisionACCEnv(("127.0.0.1", 9), trajectory="test-9")
+    with pytest.raises(ValueError, match="set speed 0.5 m/s"):
+        VisionACCEnv(("127.0.0.1", 9), set_speed=0.5)
