@@ -19,7 +19,7 @@ def _extractor_class() -> Any:
     import torch
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-    from agent_client.ddqn import QNetwork
+    from agent_client.rl.network import QNetwork
 
     class VaccExtractor(BaseFeaturesExtractor):
         """Our QNetwork minus its last layer; SB3 adds the 256 -> 21 head."""

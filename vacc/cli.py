@@ -14,7 +14,7 @@ import click
 COMMANDS = {
     "serve": "sim_server.cli:serve",
     "drive": "agent_client.cli:drive",
-    "train": "agent_client.train_cli:train",
+    "train": "agent_client.rl.cli:train",
     "metrics": "vacc.metrics_cmd:metrics",
     "snapshot": "vacc.snapshot_cmd:snapshot",
     "bench": "vacc.bench:bench",

@@ -75,7 +75,9 @@ def test_bad_methods_and_human_files(tmp_path):
 @pytest.mark.parametrize("zoom", [1, 2])
 def test_ddqn_methods_drive_from_the_models_folder(tmp_path, zoom):
     """Each checkpoint gets the camera its zoom needs (zoom 2: 400x400, else preprocess raises)."""
-    from agent_client.ddqn import Config, QNetwork, save_policy
+    from agent_client.rl.checkpoint import save_policy
+    from agent_client.rl.config import Config
+    from agent_client.rl.network import QNetwork
 
     models = tmp_path / "models"
     models.mkdir()

@@ -3,7 +3,7 @@
 ``vacc train --servers K`` runs the K actors as local processes; ``vacc train --ray
 --servers K`` runs them as Ray actors, on this machine or across a cluster. Both use
 the same :class:`StreamActor` and the same learner loop, :func:`train_distributed`.
-``--servers 1`` without ``--ray`` stays on :func:`agent_client.ddqn.train`, the
+``--servers 1`` without ``--ray`` stays on :func:`agent_client.rl.train.train`, the
 single-stream loop whose resume is bit-exact.
 
 ::
@@ -79,27 +79,24 @@ Decisions:
   would block the learner forever). Ray actors are asked to close, then killed; a Ray instance that
   :func:`train_distributed` started is shut down.
 
-Run folder: as :func:`agent_client.ddqn.train`, with the replay in one file per
+Run folder: as :func:`agent_client.rl.train.train`, with the replay in one file per
 stream, ``replay-<step>-<i>.npz``, named by ``latest.pt``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import json
 import math
 import multiprocessing as mp
 import os
 import queue
-import random
 import signal
 import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.connection import wait as wait_connections
 from pathlib import Path
@@ -107,36 +104,17 @@ from typing import Any, cast
 
 import numpy as np
 import torch
-from torch.nn.utils import parameters_to_vector, vector_to_parameters
+from torch.nn.utils import vector_to_parameters
 
-from agent_client.ddqn import (
-    CHECKPOINT_FORMAT,
-    CHECKPOINT_VERSION,
-    N_ACTIONS,
-    SESSION_TIMEOUT,
-    Config,
-    Progress,
-    QNetwork,
-    ReplayMemory,
-    ScalarLog,
-    _atomic_save,
-    _config_dict,
-    _load_weights,
-    _read_checkpoint,
-    check_resume_config,
-    dqn_update,
-    eval_episode,
-    evaluate,
-    init_from_policy,
-    linear_schedule,
-    log_evaluation,
-    save_policy,
-)
-from agent_client.errors import ClientError, InputFileError
+from agent_client.errors import ClientError
+from agent_client.rl.config import Config
+from agent_client.rl.learner import SESSION_TIMEOUT, Learner
+from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action, linear_schedule
+from agent_client.rl.replay import StreamReplay
+from agent_client.rl.scalars import Progress
 
 __all__ = [
     "StreamActor",
-    "StreamReplay",
     "train_distributed",
     "episode_rng",
     "import_ray",
@@ -179,11 +157,6 @@ def episode_rng(seed: int, actor: int, episode: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(actor, episode)))
 
 
-def _flat_weights(q: QNetwork) -> np.ndarray:
-    """The network's parameters as one float32 vector on the CPU (2.8 MB)."""
-    return parameters_to_vector(q.parameters()).detach().cpu().numpy().astype(np.float32, copy=False)
-
-
 # --------------------------------------------------------------------------- actor
 
 
@@ -222,7 +195,7 @@ class StreamActor:
         self._rng: np.random.Generator | None = None
 
     def set_weights(self, flat: np.ndarray, version: int) -> None:
-        """Load the learner's weights (a :func:`_flat_weights` vector) published at ``version`` updates."""
+        """Load the learner's weights (a :meth:`Learner.flat_weights` vector) published at ``version`` updates."""
         vector_to_parameters(torch.tensor(flat, dtype=torch.float32), self.q.parameters())
         self.version = version
 
@@ -260,9 +233,7 @@ class StreamActor:
             if self._rng.random() < epsilon:
                 action = int(self._rng.integers(N_ACTIONS))
             else:
-                with torch.inference_mode():
-                    qv = self.q(torch.from_numpy(self._obs["frames"])[None], torch.from_numpy(self._obs["speeds"])[None])  # [1, A]
-                action = int(qv.argmax(dim=1).item())
+                action = greedy_action(self.q, self._obs["frames"], self._obs["speeds"])
             next_obs, reward, term, trunc, _ = self.env.step(action)
             record(next_obs, False, action, reward, term, trunc)
             self._obs = next_obs
@@ -652,87 +623,128 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0][:200] if text else type(exc).__name__
 
 
-# -------------------------------------------------------------------------- replay
-
-
-class StreamReplay:
-    """K replay streams, one :class:`ReplayMemory` per actor, sampled as one memory.
-
-    Args:
-        cfg: ``buffer_size`` is split evenly over ``servers`` streams.
-    """
-
-    def __init__(self, cfg: Config):
-        k = cfg.servers
-        sizes = [cfg.buffer_size // k + (i < cfg.buffer_size % k) for i in range(k)]
-        self.streams = [ReplayMemory(c, cfg.frame_stack, cfg.stack_stride) for c in sizes]
-
-    @property
-    def nbytes(self) -> int:
-        return sum(m.nbytes for m in self.streams)
-
-    @property
-    def capacity(self) -> int:
-        return sum(m.capacity for m in self.streams)
-
-    def start(self, i: int, frame: np.ndarray, speed: float) -> None:
-        """Begin an episode in stream ``i`` with its first frame [105, 150] and host speed [m/s]."""
-        self.streams[i].start({"frames": frame[None], "speeds": np.array([speed], np.float32)})
-
-    def add(self, i: int, action: int, reward: float, terminated: bool, truncated: bool, frame: np.ndarray, speed: float) -> None:
-        """Record a transition of stream ``i`` and its next frame and speed."""
-        self.streams[i].add(action, reward, terminated, truncated, {"frames": frame[None], "speeds": np.array([speed], np.float32)})
-
-    def sample(self, batch_size: int, rng: np.random.Generator, n_step: int = 1, gamma: float = 0.99) -> dict[str, np.ndarray]:
-        """A batch uniform over every stored slot of every stream (see :meth:`ReplayMemory.sample`)."""
-        sizes = np.array([len(m) if m.transitions > 0 else 0 for m in self.streams], np.float64)
-        if sizes.sum() == 0:
-            raise RuntimeError("replay memory holds no complete transition")
-        counts = rng.multinomial(batch_size, sizes / sizes.sum())
-        parts = [m.sample(int(c), rng, n_step, gamma) for m, c in zip(self.streams, counts, strict=True) if c > 0]
-        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-
-    def save(self, run_dir: Path, step: int) -> list[str]:
-        """Write every stream as ``replay-<step>-<i>.npz``; returns the names."""
-        names = [f"replay-{step}-{i}.npz" for i in range(len(self.streams))]
-        for m, name in zip(self.streams, names, strict=True):
-            m.save(run_dir / name, step)
-        return names
-
-    def load(self, run_dir: Path, names: list[str], step: int) -> None:
-        """Restore the streams written by :meth:`save` at ``step``.
-
-        Raises:
-            InputFileError: a file missing, unreadable, of another layout or another step.
-        """
-        if len(names) != len(self.streams):
-            raise InputFileError(f"{run_dir}: checkpoint names {len(names)} replay streams, the run has {len(self.streams)}")
-        for m, name in zip(self.streams, names, strict=True):
-            saved = m.load(run_dir / name)
-            if saved != step:
-                raise InputFileError(f"{run_dir / name}: saved at step {saved}, but latest.pt is at step {step}")
-
-
 # ------------------------------------------------------------------------ training
-
-
-@dataclass
-class _DState:
-    """What a resumed K-stream run needs besides the weights and the replay streams."""
-
-    global_step: int = 0
-    updates: int = 0
-    episodes: int = 0
-    best_score: float = math.inf
-    recent_returns: list[float] = field(default_factory=list)
-    episodes_by_actor: list[int] = field(default_factory=list)  # next episode number of each actor
-    transitions_by_actor: list[int] = field(default_factory=list)
-    restarts_by_actor: list[int] = field(default_factory=list)
 
 
 def _updates_owed(step: int, cfg: Config) -> int:
     """Gradient steps the single-stream loop would have taken by env step ``step``."""
     return max(0, step // cfg.train_every - cfg.learning_starts // cfg.train_every)
+
+
+class _StreamsLoop:
+    """The K-stream loop's state: the learner, the replay streams, the actors' bookkeeping."""
+
+    def __init__(self, cfg: Config, learner: Learner, replay: StreamReplay, progress: bool,
+                 on_batch: Callable[[int, int, dict[str, Any]], None] | None):  # fmt: skip
+        K = cfg.servers
+        self.cfg, self.learner, self.replay, self.on_batch = cfg, learner, replay, on_batch
+        saved = learner.saved
+        self.step = int(saved.get("global_step", 0))
+        self.episodes = int(saved.get("episodes", 0))
+        self.recent = deque(saved.get("recent_returns", []), maxlen=20)
+        self.episodes_by_actor = list(saved.get("episodes_by_actor", [0] * K))
+        self.transitions_by_actor = list(saved.get("transitions_by_actor", [0] * K))
+        self.restarts_by_actor = list(saved.get("restarts_by_actor", [0] * K))
+        self.restarts_at_start = list(self.restarts_by_actor)
+        self.bar = Progress(cfg.total_steps, enabled=progress)
+        self.ep_return, self.ep_len = [0.0] * K, [0] * K
+        self.tokens: list[str | None] = [None] * K
+        self.pids: set[int] = set()
+        self.lags: list[int] = []
+        self.first_batch: tuple[float, int] | None = None  # (time, step) when data first arrived
+        self.synced_block = (cfg.learning_starts // cfg.train_every + learner.updates) * cfg.train_every // cfg.target_sync_every
+        self.t_start, self.steps_at_start = time.perf_counter(), self.step
+        self.sps = 0.0
+
+    def state(self) -> dict[str, Any]:
+        """The loop state a checkpoint keeps."""
+        return {"global_step": self.step, "episodes": self.episodes, "recent_returns": list(self.recent),
+                "episodes_by_actor": list(self.episodes_by_actor), "transitions_by_actor": list(self.transitions_by_actor),
+                "restarts_by_actor": list(self.restarts_by_actor)}  # fmt: skip
+
+    def note(self, message: str) -> None:
+        sys.stderr.write(("\n" if self.bar.enabled and self.bar.tty else "") + f"vacc train: {message}\n")
+        sys.stderr.flush()
+
+    def epsilon(self) -> float:
+        return linear_schedule(self.cfg.start_e, self.cfg.end_e, self.cfg.exploration_steps, self.step)
+
+    def learn(self, pool: _LocalPool | _RayPool) -> None:
+        """The gradient steps owed by the data received (the single stream's ratio)."""
+        cfg, learner = self.cfg, self.learner
+        while learner.updates < _updates_owed(self.step, cfg):
+            step_u = (cfg.learning_starts // cfg.train_every + learner.updates + 1) * cfg.train_every  # its single-stream step
+            log = step_u % cfg.log_every < cfg.train_every
+            losses = learner.update(self.replay.sample(cfg.batch_size, learner.rng, cfg.n_step, cfg.gamma), self.step if log else None)
+            if losses is not None:
+                learner.log.add("losses/td_loss", losses[0], self.step)
+                learner.log.add("losses/q_values", losses[1], self.step)
+            if step_u // cfg.target_sync_every > self.synced_block:
+                learner.sync_target()
+                self.synced_block = step_u // cfg.target_sync_every
+            if learner.updates % cfg.weight_sync_every == 0:
+                pool.publish(learner.flat_weights(), learner.updates, self.epsilon())
+
+    def _first_start(self, i: int, batch: dict[str, Any]) -> int:
+        """Index of the first record to store: 0, or past a new incarnation's leading
+        records that continue an episode this learner never saw begin."""
+        if batch["token"] == self.tokens[i]:
+            return 0
+        if self.tokens[i] is not None:
+            self.restarts_by_actor[i] += 1
+            self.note(f"actor {i} restarted (incarnation {batch['token']}); {sum(self.restarts_by_actor)} restarts so far")
+            self.learner.log.add("charts/actor_restarts", sum(self.restarts_by_actor), self.step)
+        self.tokens[i] = batch["token"]
+        starts = np.flatnonzero(batch["start"])
+        first = int(starts[0]) if len(starts) else len(batch["start"])
+        if first > 0:  # e.g. a batch of the new incarnation that overtook its first one
+            self.note(f"actor {i}: dropped {first} records that continue an episode whose start never arrived")
+        return first
+
+    def ingest(self, i: int, batch: dict[str, Any]) -> None:
+        """Store actor i's batch, up to the step budget, and log its finished episodes."""
+        if self.first_batch is None:
+            self.first_batch = (time.perf_counter(), self.step)
+        self.pids.add(int(batch["pid"]))
+        self.lags.append(self.learner.updates - int(batch["version"]))
+        log = self.learner.log
+        for j in range(self._first_start(i, batch), len(batch["start"])):
+            if self.step >= self.cfg.total_steps:
+                break
+            frame, speed = batch["frames"][j], float(batch["speeds"][j])
+            if batch["start"][j]:
+                self.replay.start(i, frame, speed)
+                self.ep_return[i], self.ep_len[i] = 0.0, 0
+                self.episodes_by_actor[i] = int(batch["episode"][j]) + 1
+                continue
+            term, trunc, reward = bool(batch["terminated"][j]), bool(batch["truncated"][j]), float(batch["rewards"][j])
+            self.replay.add(i, int(batch["actions"][j]), reward, term, trunc, frame, speed)
+            self.step += 1
+            self.transitions_by_actor[i] += 1
+            self.ep_return[i] += reward
+            self.ep_len[i] += 1
+            if term or trunc:
+                self.episodes += 1
+                self.recent.append(self.ep_return[i])
+                for name, value in (("episodic_return", self.ep_return[i]), ("episodic_length", self.ep_len[i]),
+                                    ("mean_reward", self.ep_return[i] / max(self.ep_len[i], 1)), ("epsilon", self.epsilon())):  # fmt: skip
+                    log.add(f"charts/{name}", value, self.step)
+
+    def log_actors(self, pool: _LocalPool | _RayPool) -> None:
+        log, step = self.learner.log, self.step
+        for i, n in enumerate(self.transitions_by_actor):
+            log.add(f"charts/transitions/actor-{i}", n, step)
+        for name, value in (("actor_restarts", sum(self.restarts_by_actor)), ("actors_alive", pool.alive()),
+                            ("SPS", self.sps), ("updates", self.learner.updates)):  # fmt: skip
+            log.add(f"charts/{name}", value, step)
+        if self.lags:
+            log.add("charts/policy_lag_updates", float(np.mean(self.lags)), step)
+            self.lags.clear()
+
+    def show(self, pool: _LocalPool | _RayPool, force: bool = False) -> None:
+        recent = float(np.mean(self.recent)) if self.recent else float("nan")
+        extra = f"actors {pool.alive()}/{self.cfg.servers}  restarts {sum(self.restarts_by_actor)}"
+        self.bar.update(self.step, self.sps, self.epsilon(), recent, force=force, extra=extra)
 
 
 def train_distributed(
@@ -749,7 +761,7 @@ def train_distributed(
     on_batch: Callable[[int, int, dict[str, Any]], None] | None = None,
     on_eval: Callable[[int, list[dict[str, Any]]], None] | None = None,
 ) -> dict[str, Any]:
-    """Train a DDQN policy with ``cfg.servers`` acting streams feeding this learner.
+    """Train a DDQN policy with ``cfg.servers`` acting streams feeding one :class:`Learner`.
 
     Args:
         cfg: the settings; ``cfg.servers`` is K.
@@ -776,246 +788,86 @@ def train_distributed(
         RayMissingError: ``use_ray`` without Ray installed.
         ClientError: every actor died, or none delivered for ``STALL_TIMEOUT``.
     """
-    from agent_client.env import VisionACCEnv  # the env spawns servers; import late
-
     if use_ray:
         import_ray()  # fail before any work if it is missing
-    K = cfg.servers
-    run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    latest, best_path = run_dir / "latest.pt", run_dir / "best.pt"
-    eval_server_args = ("--session-timeout", str(SESSION_TIMEOUT), *server_args)
-
-    # --- seeding: the one block (actors seed their episodes from (cfg.seed, i, k)). --
-    random.seed(cfg.seed)
-    np_rng = np.random.default_rng(cfg.seed)  # replay sampling
-    torch.manual_seed(cfg.seed)
-    torch.backends.cudnn.deterministic = True
-    torch.set_num_threads(cfg.torch_threads)
-    device = torch.device("cuda" if cfg.cuda and torch.cuda.is_available() else "cpu")
-
-    q = QNetwork(cfg.frame_stack, N_ACTIONS, cfg.speed_scale).to(device)
-    target = QNetwork(cfg.frame_stack, N_ACTIONS, cfg.speed_scale).to(device)
-    target.load_state_dict(q.state_dict())
-    optimizer = torch.optim.Adam(q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
-    replay = StreamReplay(cfg)
-    state = _DState(episodes_by_actor=[0] * K, transitions_by_actor=[0] * K, restarts_by_actor=[0] * K)
-
-    if not resume:
-        init_from_policy(q, target, cfg)
-    if resume:
-        ckpt = _read_checkpoint(latest)
-        if ckpt.get("kind") != "training" or ckpt.get("trainer") != "distributed":
-            raise InputFileError(f"{latest}: not a checkpoint of a multi-server run (resume it without --servers/--ray)")
-        check_resume_config(ckpt, cfg, latest)
-        _load_weights(q, ckpt["model"], latest)
-        _load_weights(target, ckpt["target"], latest, "target")
-        try:
-            optimizer.load_state_dict(ckpt["optimizer"])
-            state = _DState(**ckpt["state"])
-            np_rng.bit_generator.state = ckpt["rng"]["numpy"]
-            names = list(ckpt["replay"])
-        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-            raise InputFileError(f"{latest}: incomplete training state ({type(exc).__name__}: {exc})") from None
-        replay.load(run_dir, names, state.global_step)
-    (run_dir / "config.json").write_text(json.dumps(_config_dict(cfg), indent=2) + "\n")
-
-    log = ScalarLog(run_dir, resume_step=state.global_step if resume else None)
-    bar = Progress(cfg.total_steps, enabled=progress)
-    recent = deque(state.recent_returns, maxlen=20)
-    eval_env: VisionACCEnv | None = None
-    last_eval: list[dict[str, Any]] = []
-    t_start, steps_at_start = time.perf_counter(), state.global_step
-    next_checkpoint = state.global_step + cfg.checkpoint_every
-    next_eval = (state.global_step // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else math.inf
-    next_log = (state.global_step // cfg.log_every + 1) * cfg.log_every
-    last_eval_step = -1
-    synced_block = (cfg.learning_starts // cfg.train_every + state.updates) * cfg.train_every // cfg.target_sync_every
-    ep_return, ep_len = [0.0] * K, [0] * K
-    tokens: list[str | None] = [None] * K
-    pids: set[int] = set()
-    lags: list[int] = []
-    first_batch: tuple[float, int] | None = None  # (time, step) when data first arrived
-    restarts_at_start = list(state.restarts_by_actor)
-
-    def note(message: str) -> None:
-        sys.stderr.write(("\n" if bar.enabled and bar.tty else "") + f"vacc train: {message}\n")
-        sys.stderr.flush()
-
-    def epsilon() -> float:
-        return linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
-
-    def run_eval() -> None:
-        nonlocal eval_env, last_eval
-        if eval_env is None:
-            eval_env = VisionACCEnv(
-                scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
-                frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
-                episode_seconds=cfg.eval_seconds, server_args=eval_server_args, zoom=cfg.zoom,
-            )  # fmt: skip
-        q.eval()
-        last_eval = evaluate(q, eval_env, cfg.eval_trajectories)
-        q.train()
-        score = log_evaluation(log, last_eval, state.global_step)
-        if score < state.best_score:
-            state.best_score = score
-            save_policy(q, cfg, best_path, {"step": state.global_step, "eval": last_eval})
-        log.flush()
-        if on_eval is not None:
-            on_eval(state.global_step, last_eval)
-
-    def checkpoint() -> None:
-        state.recent_returns = list(recent)
-        # As ddqn.train: the replay under new names first, then latest.pt naming them,
-        # then the old files go. A kill -9 anywhere leaves a resumable set.
-        names = replay.save(run_dir, state.global_step)
-        _atomic_save(
-            {
-                "format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "kind": "training", "trainer": "distributed",
-                "replay": names, "config": _config_dict(cfg), "model": q.state_dict(), "target": target.state_dict(),
-                "optimizer": optimizer.state_dict(), "state": dataclasses.asdict(state),
-                "rng": {"numpy": np_rng.bit_generator.state, "torch": torch.get_rng_state()},
-            },
-            latest,
-        )  # fmt: skip
-        for old in run_dir.glob("replay-*.npz"):
-            if old.name not in names:
-                old.unlink()
-        log.flush()
-
-    def ingest(i: int, batch: dict[str, Any]) -> None:
-        """Store actor i's batch, up to the step budget, and log its finished episodes."""
-        nonlocal first_batch
-        if first_batch is None:
-            first_batch = (time.perf_counter(), state.global_step)
-        pids.add(int(batch["pid"]))
-        if batch["token"] != tokens[i]:
-            if tokens[i] is not None:
-                state.restarts_by_actor[i] += 1
-                note(f"actor {i} restarted (incarnation {batch['token']}); {sum(state.restarts_by_actor)} restarts so far")
-                log.add("charts/actor_restarts", sum(state.restarts_by_actor), state.global_step)
-            tokens[i] = batch["token"]
-            assert batch["start"][0], "a new incarnation begins with an episode start"
-        lags.append(state.updates - int(batch["version"]))
-        for j in range(len(batch["start"])):
-            if state.global_step >= cfg.total_steps:
-                break
-            frame, speed = batch["frames"][j], float(batch["speeds"][j])
-            if batch["start"][j]:
-                replay.start(i, frame, speed)
-                ep_return[i], ep_len[i] = 0.0, 0
-                state.episodes_by_actor[i] = int(batch["episode"][j]) + 1
-                continue
-            term, trunc, reward = bool(batch["terminated"][j]), bool(batch["truncated"][j]), float(batch["rewards"][j])
-            replay.add(i, int(batch["actions"][j]), reward, term, trunc, frame, speed)
-            state.global_step += 1
-            state.transitions_by_actor[i] += 1
-            ep_return[i] += reward
-            ep_len[i] += 1
-            if term or trunc:
-                state.episodes += 1
-                recent.append(ep_return[i])
-                log.add("charts/episodic_return", ep_return[i], state.global_step)
-                log.add("charts/episodic_length", ep_len[i], state.global_step)
-                log.add("charts/mean_reward", ep_return[i] / max(ep_len[i], 1), state.global_step)
-                log.add("charts/epsilon", epsilon(), state.global_step)
-
-    def log_actors(sps: float) -> None:
-        for i in range(K):
-            log.add(f"charts/transitions/actor-{i}", state.transitions_by_actor[i], state.global_step)
-        log.add("charts/actor_restarts", sum(state.restarts_by_actor), state.global_step)
-        log.add("charts/actors_alive", pool.alive() if pool is not None else 0, state.global_step)
-        log.add("charts/SPS", sps, state.global_step)
-        log.add("charts/updates", state.updates, state.global_step)
-        if lags:
-            log.add("charts/policy_lag_updates", float(np.mean(lags)), state.global_step)
-            lags.clear()
-
+    learner = Learner(cfg, run_dir, resume=resume, trainer="streams", server_args=server_args, on_eval=on_eval)
     pool: _LocalPool | _RayPool | None = None
-    sps = 0.0
     try:
-        n_params = sum(p.numel() for p in q.parameters())
-        pool = (
-            _RayPool(cfg, server_args, max_restarts, ray_address, actor_cpus) if use_ray else _LocalPool(cfg, server_args, max_restarts, n_params)
-        )
-        pool.publish(_flat_weights(q), state.updates, epsilon())
-        pool.start(list(state.episodes_by_actor), note)
-        last_data = time.monotonic()
-        last_checkpoint_step = state.global_step
-        while True:
-            # 1. the gradient steps owed by the data received (the single stream's ratio)
-            while state.updates < _updates_owed(state.global_step, cfg):
-                b = replay.sample(cfg.batch_size, np_rng, cfg.n_step, cfg.gamma)
-                loss, q_taken = dqn_update(q, target, optimizer, b, cfg, device)
-                state.updates += 1
-                step_u = (cfg.learning_starts // cfg.train_every + state.updates) * cfg.train_every  # its single-stream step
-                if step_u % cfg.log_every < cfg.train_every:
-                    log.add("losses/td_loss", loss.item(), state.global_step)
-                    log.add("losses/q_values", q_taken.mean().item(), state.global_step)
-                if step_u // cfg.target_sync_every > synced_block:
-                    target.load_state_dict(q.state_dict())
-                    synced_block = step_u // cfg.target_sync_every
-                if state.updates % cfg.weight_sync_every == 0:
-                    pool.publish(_flat_weights(q), state.updates, epsilon())
-            # 2. evaluation and checkpoints on their step grids, and at the end
-            finished = state.global_step >= cfg.total_steps
-            if state.global_step >= next_log or finished:
-                log_actors(sps)
-                next_log = (state.global_step // cfg.log_every + 1) * cfg.log_every
-            if cfg.eval_trajectories and (state.global_step >= next_eval or (finished and last_eval_step != state.global_step)):
-                run_eval()
-                last_eval_step = state.global_step
-                while next_eval <= state.global_step:
-                    next_eval += cfg.eval_every
-            if state.global_step >= next_checkpoint or (finished and last_checkpoint_step != state.global_step):
-                checkpoint()
-                last_checkpoint_step = state.global_step
-                next_checkpoint = state.global_step + cfg.checkpoint_every
-            if finished:
-                break
-            # 3. the next batches
-            pool.set_epsilon(epsilon())
-            got = pool.poll(0.5, state.episodes_by_actor, note)
-            if pool.alive() == 0:
-                raise ClientError(f"every actor died (restarts: {state.restarts_by_actor}); see the messages above")
-            if not got:
-                if time.monotonic() - last_data > STALL_TIMEOUT:
-                    raise ClientError(f"no transitions from any of the {K} actors for {STALL_TIMEOUT:.0f} s")
-                continue
-            last_data = time.monotonic()
-            for i, batch in got:
-                ingest(i, batch)
-                if on_batch is not None:
-                    on_batch(state.global_step, i, batch)
-            sps = (state.global_step - steps_at_start) / max(time.perf_counter() - t_start, 1e-9)
-            bar.update(state.global_step, sps, epsilon(), float(np.mean(recent)) if recent else float("nan"),
-                       extra=f"actors {pool.alive()}/{K}  restarts {sum(state.restarts_by_actor)}")  # fmt: skip
-        t_end = time.perf_counter()
-        bar.update(state.global_step, sps, epsilon(), float(np.mean(recent)) if recent else float("nan"), force=True,
-                   extra=f"actors {pool.alive()}/{K}  restarts {sum(state.restarts_by_actor)}")  # fmt: skip
+        replay = StreamReplay(cfg.buffer_size, cfg.servers, cfg.frame_stack, cfg.stack_stride)
+        if resume:
+            replay.load(learner.run_dir, learner.replay_names, int(learner.saved.get("global_step", 0)))
+        loop = _StreamsLoop(cfg, learner, replay, progress, on_batch)
+        n_params = sum(p.numel() for p in learner.q.parameters())
+        pool = _RayPool(cfg, server_args, max_restarts, ray_address, actor_cpus) if use_ray else _LocalPool(cfg, server_args, max_restarts, n_params)
+        t_end = _run_streams(loop, pool)
     finally:
-        bar.close()
         try:
             if pool is not None:
                 pool.close()
         finally:
-            log.close()
-            if eval_env is not None:
-                eval_env.close()
-    t0, s0 = first_batch if first_batch is not None else (t_end, state.global_step)
+            learner.close()
+    t0, s0 = loop.first_batch if loop.first_batch is not None else (t_end, loop.step)
     return {
-        "steps": state.global_step,
-        "updates": state.updates,
-        "episodes": state.episodes,
-        "best_score": state.best_score,
-        "last_eval": last_eval,
-        "wall_s": t_end - t_start,
-        "env_steps_per_s": (state.global_step - s0) / max(t_end - t0, 1e-9),
-        "servers": K,
+        "steps": loop.step,
+        "updates": learner.updates,
+        "episodes": loop.episodes,
+        "best_score": learner.best_score,
+        "last_eval": learner.last_eval,
+        "wall_s": t_end - loop.t_start,
+        "env_steps_per_s": (loop.step - s0) / max(t_end - t0, 1e-9),
+        "servers": cfg.servers,
         "backend": "ray" if use_ray else "local",
-        "transitions_by_actor": list(state.transitions_by_actor),
-        "restarts_by_actor": [r - r0 for r, r0 in zip(state.restarts_by_actor, restarts_at_start, strict=True)],
-        "actor_pids": sorted(pids),
+        "transitions_by_actor": list(loop.transitions_by_actor),
+        "restarts_by_actor": [r - r0 for r, r0 in zip(loop.restarts_by_actor, loop.restarts_at_start, strict=True)],
+        "actor_pids": sorted(loop.pids),
         "replay_bytes_per_transition": replay.nbytes / replay.capacity,
     }
 
+
+def _run_streams(loop: _StreamsLoop, pool: _LocalPool | _RayPool) -> float:
+    """Learn, evaluate, checkpoint and take the actors' batches until the step budget; returns the end time."""
+    cfg, learner = loop.cfg, loop.learner
+    next_checkpoint = loop.step + cfg.checkpoint_every
+    next_eval = (loop.step // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else math.inf
+    next_log = (loop.step // cfg.log_every + 1) * cfg.log_every
+    last_eval_step = last_checkpoint_step = -1
+    try:
+        pool.publish(learner.flat_weights(), learner.updates, loop.epsilon())
+        pool.start(list(loop.episodes_by_actor), loop.note)
+        last_data = time.monotonic()
+        while True:
+            loop.learn(pool)
+            finished = loop.step >= cfg.total_steps
+            if loop.step >= next_log or finished:
+                loop.log_actors(pool)
+                next_log = (loop.step // cfg.log_every + 1) * cfg.log_every
+            if cfg.eval_trajectories and (loop.step >= next_eval or (finished and last_eval_step != loop.step)):
+                learner.evaluate(loop.step)
+                last_eval_step = loop.step
+                while next_eval <= loop.step:
+                    next_eval += cfg.eval_every
+            if loop.step >= next_checkpoint or (finished and last_checkpoint_step != loop.step):
+                learner.checkpoint(loop.state(), loop.replay)
+                last_checkpoint_step, next_checkpoint = loop.step, loop.step + cfg.checkpoint_every
+            if finished:
+                break
+            pool.set_epsilon(loop.epsilon())
+            got = pool.poll(0.5, loop.episodes_by_actor, loop.note)
+            if pool.alive() == 0:
+                raise ClientError(f"every actor died (restarts: {loop.restarts_by_actor}); see the messages above")
+            if not got:
+                if time.monotonic() - last_data > STALL_TIMEOUT:
+                    raise ClientError(f"no transitions from any of the {cfg.servers} actors for {STALL_TIMEOUT:.0f} s")
+                continue
+            last_data = time.monotonic()
+            for i, batch in got:
+                loop.ingest(i, batch)
+                if loop.on_batch is not None:
+                    loop.on_batch(loop.step, i, batch)
+            loop.sps = (loop.step - loop.steps_at_start) / max(time.perf_counter() - loop.t_start, 1e-9)
+            loop.show(pool)
+        t_end = time.perf_counter()
+        loop.show(pool, force=True)
+    finally:
+        loop.bar.close()
+    return t_end

@@ -9,7 +9,9 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from agent_client.ddqn import Config, load_policy, train
+from agent_client.rl.checkpoint import load_policy
+from agent_client.rl.config import Config
+from agent_client.rl.train import train
 from vacc.cli import main
 
 TINY = Config(
@@ -178,11 +180,13 @@ def test_zoom2_trains_and_drives_with_full_resolution_frames(tmp_path):
 
 def test_checkpoints_without_a_zoom_are_the_papers_pipeline(tmp_path):
     """Models saved before the zoom setting existed (e.g. models/ice-gap.pt) load as zoom 1."""
-    from agent_client.ddqn import QNetwork, save_policy
+    from agent_client.rl.checkpoint import save_policy
+    from agent_client.rl.network import QNetwork
 
     path = tmp_path / "old.pt"
     save_policy(QNetwork(), Config(), path)
     ckpt = torch.load(path, weights_only=True)
-    del ckpt["config"]["zoom"]
+    del ckpt["config"]["zoom"], ckpt["sha256"]
+    ckpt["version"] = 1  # as written before checkpoints carried a digest
     torch.save(ckpt, path)
     assert load_policy(path)[1].zoom == 1

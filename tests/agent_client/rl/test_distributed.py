@@ -21,10 +21,12 @@ from proctree import (
     wait_until_both_actors_deliver,
 )
 
-from agent_client.ddqn import Config, ReplayMemory, train
-from agent_client.distributed import RAY_INSTALL_HINT, StreamActor, StreamReplay, train_distributed
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config
+from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, train_distributed
+from agent_client.rl.replay import ReplayMemory, StreamReplay
+from agent_client.rl.train import train
 from vacc.cli import main
 
 SMALL = Config(
@@ -63,7 +65,7 @@ def _batch(rng, starts, n_frames) -> dict:
 
 def test_stream_replay_samples_every_stream_and_keeps_the_bytes_per_transition():
     cfg = Config(buffer_size=3001, servers=3, frame_stack=8, stack_stride=2)
-    replay = StreamReplay(cfg)
+    replay = StreamReplay(cfg.buffer_size, cfg.servers, cfg.frame_stack, cfg.stack_stride)
     assert [m.capacity for m in replay.streams] == [1001, 1000, 1000] and replay.capacity == 3001
     assert replay.nbytes / replay.capacity <= 1.1 * FRAME_H * FRAME_W
     rng = np.random.default_rng(0)
@@ -78,8 +80,8 @@ def test_stream_replay_samples_every_stream_and_keeps_the_bytes_per_transition()
     counts = np.zeros(3)
     for _ in range(50):
         s = replay.sample(32, rng, n_step=3, gamma=0.9)
-        assert s["frames"].shape == (32, 8, FRAME_H, FRAME_W) and s["next_frames"].shape == (32, 8, FRAME_H, FRAME_W)
-        assert s["returns"].shape == (32,) and s["actions"].dtype == np.int64
+        assert s.frames.shape == (32, 8, FRAME_H, FRAME_W) and s.next_frames.shape == (32, 8, FRAME_H, FRAME_W)
+        assert s.returns.shape == (32,) and s.actions.dtype == torch.int64
     # proportional to the streams' sizes (600 : 300 : 0 slots)
     rng = np.random.default_rng(1)
     sizes = np.array([len(m) if m.transitions else 0 for m in replay.streams], float)
@@ -93,7 +95,7 @@ def test_shared_weights_hold_no_lock_an_actor_could_die_with():
     writer that never finishes (a learner killed mid-write) leaves the reader its old weights."""
     import multiprocessing as mp
 
-    from agent_client.distributed import _Shared
+    from agent_client.rl.distributed import _Shared
 
     shared = _Shared(mp.get_context("spawn"), 5)
     assert shared.read() is not None and shared.read()[1] == -1
@@ -207,11 +209,11 @@ def test_resume_of_a_two_server_run(tmp_path):
         assert ReplayMemory(500, 8, 2).load(run / f"replay-300-{i}.npz") == 300
     _assert_no_orphans(first["actor_pids"] + resumed["actor_pids"])
     # the wrong trainer for the checkpoint is refused, by name
-    with pytest.raises(InputFileError, match="other settings.*servers"):
+    with pytest.raises(InputFileError, match="written by the K-stream trainer; resume it with --servers/--ray"):
         train(Config(**{**SMALL.__dict__, "servers": 1}), run, resume=True, progress=False)
     single = tmp_path / "single"
     train(Config(**{**SMALL.__dict__, "servers": 1, "total_steps": 20, "learning_starts": 10}), single, progress=False)
-    with pytest.raises(InputFileError, match="not a checkpoint of a multi-server run"):
+    with pytest.raises(InputFileError, match="written by the single-stream trainer; resume it without --servers/--ray"):
         train_distributed(SMALL, single, resume=True, progress=False)
 
 

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import torch
 
-from agent_client.ddqn import ReplayMemory
+from agent_client.rl.replay import ReplayMemory
 
 ARGS = [
     "train", "--reward", "gap", "--steps", "300", "--learning-starts", "20", "--episode-seconds", "3",
@@ -22,7 +22,8 @@ def _check_pair(run):
     """latest.pt loads, and the replay file it names holds the same step."""
     ckpt = torch.load(run / "latest.pt", map_location="cpu", weights_only=False)
     step = ckpt["state"]["global_step"]
-    replay = run / ckpt["replay"]
+    (name,) = ckpt["replay"]
+    replay = run / name
     assert ReplayMemory(1000, 8, 2).load(replay) == step
     return step
 
@@ -33,7 +34,8 @@ def test_random_kill_9_then_resume(tmp_path):
     deadline = time.monotonic() + 240  # bounded in time as well as in kills
     kills, steps_seen = 0, []
     while kills < 4 and time.monotonic() < deadline:
-        resume = ["--resume"] if (run / "latest.pt").exists() else []
+        # killed before its first checkpoint: start afresh over the half-made folder
+        resume = ["--resume"] if (run / "latest.pt").exists() else ["--overwrite"]
         proc = subprocess.Popen([sys.executable, "-m", "vacc", *ARGS, "--out", str(run), *resume], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             proc.wait(timeout=float(rng.uniform(4.0, 9.0)))

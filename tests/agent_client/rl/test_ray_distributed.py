@@ -22,8 +22,8 @@ from proctree import (
     wait_until_both_actors_deliver,
 )
 
-from agent_client.ddqn import Config
-from agent_client.distributed import train_distributed
+from agent_client.rl.config import Config
+from agent_client.rl.distributed import train_distributed
 
 ray = pytest.importorskip("ray")
 

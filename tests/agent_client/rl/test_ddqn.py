@@ -8,21 +8,21 @@ import numpy as np
 import pytest
 import torch
 
-from agent_client.ddqn import (
+from agent_client.controllers.ddqn import DDQNController
+from agent_client.errors import InputFileError
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_VERSION,
-    FORCES,
-    Config,
-    DDQNController,
-    QNetwork,
-    ReplayMemory,
-    double_dqn_target,
-    linear_schedule,
+    CheckpointWriteError,
+    digest,
     load_policy,
     save_policy,
 )
-from agent_client.errors import InputFileError
-from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config
+from agent_client.rl.learner import double_dqn_target
+from agent_client.rl.network import FORCES, QNetwork, linear_schedule
+from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 
 FRAME_BYTES = FRAME_H * FRAME_W  # one preprocessed frame, uint8
@@ -72,14 +72,14 @@ def test_replay_samples_whole_valid_transitions_only():
     memory = ReplayMemory(50, 8, 2)
     expected, flags = _fill(memory, rng, [10, 25, 3, 20], ["terminated", "terminated", "truncated", "cut"])
     batch = memory.sample(256, rng)
-    for b, i in enumerate(batch["indices"]):
+    for b, i in enumerate(batch.indices):
         assert i in flags, "sampled an episode's last observation as a start"
-        np.testing.assert_array_equal(batch["frames"][b], expected[i]["frames"])
-        np.testing.assert_array_equal(batch["next_frames"][b], expected[i + 1]["frames"])
-        np.testing.assert_array_equal(batch["next_speeds"][b], expected[i + 1]["speeds"])
-        assert (bool(batch["terminated"][b]), bool(batch["truncated"][b])) == flags[i]
-    assert batch["truncated"].any() and batch["terminated"].any()
-    assert not (batch["truncated"] & batch["terminated"]).any()
+        np.testing.assert_array_equal(batch.frames[b], expected[i]["frames"])
+        np.testing.assert_array_equal(batch.next_frames[b], expected[i + 1]["frames"])
+        np.testing.assert_array_equal(batch.next_speeds[b], expected[i + 1]["speeds"])
+        assert (bool(batch.terminated[b]), bool(batch.truncated[b])) == flags[i]
+    assert batch.truncated.any() and batch.terminated.any()
+    assert not (batch.truncated & batch.terminated).any()
 
 
 def test_replay_bytes_per_transition_within_1_1_frames():
@@ -138,7 +138,7 @@ def test_n_step_returns_stop_at_episode_ends():
     memory = ReplayMemory(200, 8, 1)
     expected, flags = _fill(memory, rng, [6, 4, 30], ["truncated", "terminated", "cut"])
     batch = memory.sample(300, rng, n_step=3, gamma=0.5)
-    for b, i in enumerate(batch["indices"]):
+    for b, i in enumerate(batch.indices):
         g, disc, steps = 0.0, 1.0, 0
         for k in range(3):
             if i + k not in flags:  # past the episode's last observation
@@ -148,14 +148,14 @@ def test_n_step_returns_stop_at_episode_ends():
             steps += 1
             if any(flags[i + k]):
                 break
-        assert batch["returns"][b] == pytest.approx(g, rel=1e-5)
-        assert batch["discounts"][b] == pytest.approx(disc)
-        assert batch["terminal_rewards"][b] == pytest.approx(memory.rewards[i + steps - 1])
-        np.testing.assert_array_equal(batch["next_frames"][b], expected[i + steps]["frames"])
+        assert batch.returns[b] == pytest.approx(g, rel=1e-5)
+        assert batch.discounts[b] == pytest.approx(disc)
+        assert batch.terminal_rewards[b] == pytest.approx(memory.rewards[i + steps - 1])
+        np.testing.assert_array_equal(batch.next_frames[b], expected[i + steps]["frames"])
         ended = [flags[i + k] for k in range(steps)]
-        assert bool(batch["terminated"][b]) == any(t for t, _ in ended)
-        assert bool(batch["truncated"][b]) == any(t for _, t in ended)
-    assert batch["terminated"].any() and batch["truncated"].any()
+        assert bool(batch.terminated[b]) == any(t for t, _ in ended)
+        assert bool(batch.truncated[b]) == any(t for _, t in ended)
+    assert batch.terminated.any() and batch.truncated.any()
 
 
 def test_epsilon_schedule():
@@ -307,14 +307,59 @@ def test_wrong_shape_checkpoint(tmp_path, good_checkpoint):
     ckpt = torch.load(good_checkpoint, weights_only=True)
     assert ckpt["format"] == CHECKPOINT_FORMAT
     ckpt["model"]["fc.2.weight"] = torch.zeros(5, 256)  # 5 actions instead of 21
+    ckpt["sha256"] = digest(ckpt)  # a consistent file, written with the wrong network
     bad = tmp_path / "shape.pt"
     torch.save(ckpt, bad)
     with pytest.raises(InputFileError, match="shape.pt.*do not fit"):
         load_policy(bad)
     del ckpt["model"]["fc.2.weight"]
+    ckpt["sha256"] = digest(ckpt)
     torch.save(ckpt, bad)
     with pytest.raises(InputFileError, match="shape.pt"):
         load_policy(bad)
+
+
+def test_flipped_bytes_in_a_checkpoint_fail_in_one_line_naming_the_file(tmp_path, good_checkpoint):
+    ckpt = torch.load(good_checkpoint, weights_only=True)
+    ckpt["model"]["conv.0.weight"].view(-1)[:16] = 839.0  # what 64 flipped bytes once did, silently
+    bad = tmp_path / "flipped.pt"
+    torch.save(ckpt, bad)
+    with pytest.raises(InputFileError, match=r"flipped.pt: checkpoint is corrupt \(its SHA-256") as info:
+        load_policy(bad)
+    assert "\n" not in str(info.value)
+    raw = bytearray(good_checkpoint.read_bytes())  # bytes flipped inside the file itself
+    middle = len(raw) // 2
+    raw[middle : middle + 64] = bytes(b ^ 0xFF for b in raw[middle : middle + 64])
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(InputFileError, match="flipped.pt") as info:
+        load_policy(bad)
+    assert "\n" not in str(info.value)
+
+
+def test_the_shipped_models_load_and_carry_a_digest():
+    from pathlib import Path
+
+    for path in sorted((Path(__file__).parents[3] / "models").glob("*.pt")):
+        q, cfg = load_policy(path)
+        ckpt = torch.load(path, weights_only=True)
+        assert ckpt["version"] == CHECKPOINT_VERSION and ckpt["sha256"] == digest(ckpt), path
+        assert path.stat().st_size <= 5 * 1024 * 1024
+
+
+def test_a_full_disk_leaves_no_temporary_file_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
+    path = tmp_path / "best.pt"
+    save_policy(QNetwork(), Config(), path)
+    before = path.read_bytes()
+
+    def full(obj, f, *args, **kwargs):
+        raise OSError(28, "No space left on device")  # ENOSPC, as torch.save meets it
+
+    monkeypatch.setattr(torch, "save", full)
+    with pytest.raises(CheckpointWriteError, match="best.pt: could not be written \\(the disk is full\\)") as info:
+        save_policy(QNetwork(), Config(), path)
+    assert "\n" not in str(info.value)
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["best.pt"]
+    load_policy(path)
 
 
 def test_config_rejects_bad_values():

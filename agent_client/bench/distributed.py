@@ -1,9 +1,9 @@
-"""Scaling figures of the multi-server trainer (:mod:`agent_client.distributed`).
+"""Scaling figures of the multi-server trainer (:mod:`agent_client.rl.distributed`).
 
 * environment steps/s into one learner against K = 1, 2, 4 actors (each with its own
   simulator server), learning off, so that the figure is the acting side's; ε = 0.05,
   so that actors run their forward pass as a trained policy does;
-* the same K = 1 stream in-process (:func:`agent_client.ddqn.train`) as the reference;
+* the same K = 1 stream in-process (:func:`agent_client.rl.train.train`) as the reference;
 * optionally with learning on (one batch-32 update per 8 steps), where the learner limits;
 * the learner's cost per received transition (replay insert) and per update, which
   bound a 100-node run (see docs/benchmarks.md).
@@ -11,12 +11,13 @@
 The K values are interleaved over the repetitions so that a change in the machine's
 load hits every K alike; read the ratios.
 
-    python -m agent_client.distributed_bench [--ks 1,2,4] [--steps 1500] [--reps 2] [--ray] [--learning]
+    python -m agent_client.bench.distributed [--ks 1,2,4] [--steps 1500] [--reps 2] [--ray] [--learning]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import tempfile
@@ -26,9 +27,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from agent_client.ddqn import Config, QNetwork, dqn_update, train
-from agent_client.distributed import StreamReplay, train_distributed
 from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config
+from agent_client.rl.distributed import train_distributed
+from agent_client.rl.learner import Learner
+from agent_client.rl.replay import StreamReplay
+from agent_client.rl.train import train
 
 __all__ = ["acting_rate", "learner_costs", "run"]
 
@@ -92,7 +96,7 @@ def acting_rate(k: int, steps: int, learning: bool = False, use_ray: bool = Fals
 
 
 def single_stream_rate(steps: int, learning: bool = False) -> dict[str, Any]:
-    """Env steps/s of :func:`agent_client.ddqn.train` (one in-process stream, no IPC)."""
+    """Env steps/s of :func:`agent_client.rl.train.train` (one in-process stream, no IPC)."""
     with tempfile.TemporaryDirectory() as tmp:
         s = train(_cfg(1, steps, learning), tmp, progress=False)
     return {"k": 1, "steps": s["steps"], "env_steps_per_s": s["steps"] / s["wall_s"], "wall_s": s["wall_s"], "load": os.getloadavg()[0]}
@@ -104,7 +108,7 @@ def learner_costs(k: int = 4, capacity: int = 8_000, updates: int = 20) -> dict[
     one CPU thread. Medians over repetitions; the replay is filled once first, so
     that page faults of fresh memory are not counted."""
     cfg = Config(servers=k, buffer_size=capacity)
-    replay = StreamReplay(cfg)
+    replay = StreamReplay(cfg.buffer_size, k, cfg.frame_stack, cfg.stack_stride)
     rng = np.random.default_rng(0)
     frames = rng.integers(0, 256, (50, FRAME_H, FRAME_W), dtype=np.uint8)
 
@@ -125,17 +129,17 @@ def learner_costs(k: int = 4, capacity: int = 8_000, updates: int = 20) -> dict[
         replay.sample(32, rng, 5, 0.99)
         samples.append(time.process_time() - t0)
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)
     try:
-        q, target = QNetwork(), QNetwork()
-        opt = torch.optim.Adam(q.parameters(), lr=1e-4)
-        times = []
-        for u in range(updates + 3):
-            b = replay.sample(32, rng, 5, 0.99)
-            t0 = time.process_time()
-            dqn_update(q, target, opt, b, cfg, torch.device("cpu"))
-            if u >= 3:
-                times.append(time.process_time() - t0)
+        with tempfile.TemporaryDirectory() as tmp:
+            learner = Learner(dataclasses.replace(cfg, servers=1, cuda=False), tmp)  # one torch thread
+            times = []
+            for u in range(updates + 3):
+                b = replay.sample(32, rng, 5, 0.99)
+                t0 = time.process_time()
+                learner.update(b)
+                if u >= 3:
+                    times.append(time.process_time() - t0)
+            learner.close()
     finally:
         torch.set_num_threads(threads)
     return {"insert_cpu_s_per_transition": insert, "sample_cpu_s": float(np.median(samples)), "update_cpu_s": float(np.median(times))}

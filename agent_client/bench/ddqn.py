@@ -5,7 +5,7 @@
 * training steps/s against a real simulator server over UDP, learning on;
 * replay memory bytes per transition.
 
-    python -m agent_client.ddqn_bench [--quick]
+    python -m agent_client.bench.ddqn [--quick]
 """
 
 from __future__ import annotations
@@ -19,8 +19,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from agent_client.ddqn import Config, DDQNController, QNetwork, ReplayMemory, train
+from agent_client.controllers.ddqn import DDQNController
 from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config
+from agent_client.rl.network import QNetwork
+from agent_client.rl.replay import ReplayMemory
+from agent_client.rl.train import train
 
 __all__ = ["decision_latency", "training_rate", "replay_bytes_per_transition", "run"]
 

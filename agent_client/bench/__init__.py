@@ -1,0 +1,1 @@
+"""Benchmarks of the client side: the learner (``ddqn``) and the K-stream trainer (``distributed``)."""

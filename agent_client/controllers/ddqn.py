@@ -1,0 +1,63 @@
+"""The learned driver: a DDQN checkpoint's greedy policy on raw session observations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent_client.preprocess import preprocess
+from agent_client.rl.checkpoint import load_policy
+from agent_client.rl.config import Config
+from agent_client.rl.network import FORCES, QNetwork, greedy_action
+from agent_client.stacker import FrameStacker
+
+__all__ = ["DDQNController"]
+
+
+class DDQNController:
+    """Greedy DDQN driver (for ``vacc drive`` and ``vacc evaluate``).
+
+    Keeps its own frame/speed stack with the env's :class:`FrameStacker`, so it sees
+    exactly what the network saw in training, and decides through
+    :func:`~agent_client.rl.network.greedy_action`, the trainer's own inference path.
+    Uses the camera image and the host speed of the observation only.
+
+    Args:
+        q: the Q-network.
+        cfg: its config (stack size, stride, zoom).
+    """
+
+    name = "ddqn"
+
+    def __init__(self, q: QNetwork, cfg: Config):
+        self.q, self.cfg = q.eval(), cfg
+        self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path) -> DDQNController:
+        """Load from a checkpoint.
+
+        Raises:
+            InputFileError: see :func:`~agent_client.rl.checkpoint.load_policy`.
+        """
+        return cls(*load_policy(path))
+
+    def reset(self) -> None:
+        """Forget the previous episode's frames."""
+        self.stacker.reset()
+
+    def act(self, stacked: dict[str, np.ndarray]) -> int:
+        """Greedy action index for a stacked observation (frames + speeds only)."""
+        return greedy_action(self.q, stacked["frames"], stacked["speeds"])
+
+    def __call__(self, obs: dict[str, Any]) -> float:
+        """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
+        from agent_client.session import Session
+
+        image = Session.image(obs)
+        if image is None:
+            raise ValueError("the ddqn controller needs camera images; open the session with image_format='gray'")
+        stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]))
+        return float(FORCES[self.act(stacked)])

@@ -1,0 +1,228 @@
+"""Checkpoints: one layout for policies and for both trainers' training state.
+
+A checkpoint is a ``torch.save`` dict::
+
+    format   "vacc-ddqn"
+    version  2 (1: written before this layout; still read, without a digest)
+    kind     "policy" | "training"
+    config   the run's Config as builtins
+    model    the online network's weights
+    sha256   digest of everything else (checked on every load)
+    extra    (policy) e.g. the step and evaluation that chose it
+    trainer  (training) "single" | "streams"
+    target, optimizer, acting (the parallel schedule's acting weights, else absent)
+    state    the loop's counters (step, episodes, best score, ...)
+    rng      generator states by name, torch's and python's
+    replay   the replay file names that go with it
+
+Every write is atomic (a temporary file, then ``os.replace``). A failed write (a full
+disk) removes its temporary file and raises :class:`CheckpointWriteError`, one line;
+the previous checkpoint is untouched.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn as nn
+
+from agent_client.errors import ClientError, InputFileError
+from agent_client.rl.config import Config, config_dict, config_from
+from agent_client.rl.network import N_ACTIONS, QNetwork
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "CHECKPOINT_VERSION",
+    "CheckpointWriteError",
+    "atomic_save",
+    "read_checkpoint",
+    "save_policy",
+    "load_policy",
+    "load_weights",
+    "checkpoint_config",
+    "digest",
+]
+
+CHECKPOINT_FORMAT = "vacc-ddqn"
+CHECKPOINT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+
+
+class CheckpointWriteError(OSError, ClientError):
+    """A checkpoint or replay file could not be written (e.g. the disk is full)."""
+
+
+def _feed(h: Any, obj: Any) -> None:
+    """Hash ``obj`` canonically: dict keys sorted, tensors by dtype, shape and bytes."""
+    if isinstance(obj, torch.Tensor):
+        t = obj.detach().cpu().contiguous()
+        h.update(f"T{t.dtype}{tuple(t.shape)}".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    elif isinstance(obj, dict):
+        h.update(f"D{len(obj)}".encode())
+        for k in sorted(obj, key=repr):
+            _feed(h, k)
+            _feed(h, obj[k])
+    elif isinstance(obj, (list, tuple)):
+        h.update(f"L{len(obj)}".encode())
+        for x in obj:
+            _feed(h, x)
+    else:  # str, int, float, bool, None: repr is exact for each
+        h.update(f"{type(obj).__name__}:{obj!r};".encode())
+
+
+def digest(payload: dict[str, Any]) -> str:
+    """SHA-256 (hex) of a checkpoint's contents, its own ``sha256`` entry left out."""
+    h = hashlib.sha256()
+    _feed(h, {k: v for k, v in payload.items() if k != "sha256"})
+    return h.hexdigest()
+
+
+def atomic_save(obj: dict[str, Any], path: Path) -> None:
+    """``torch.save`` ``obj`` (with its digest) to ``path`` through a temporary file.
+
+    Raises:
+        CheckpointWriteError: the write failed; the temporary file is removed and
+            ``path`` keeps its previous contents.
+    """
+    obj = {**obj, "sha256": digest(obj)}
+    write_atomically(path, lambda tmp: torch.save(obj, tmp))
+
+
+def write_atomically(path: Path, write: Any) -> None:
+    """Call ``write(tmp)``, then move ``tmp`` over ``path``; on failure remove ``tmp``.
+
+    Raises:
+        CheckpointWriteError: one line naming the file and the cause.
+    """
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # torch.save wraps ENOSPC in a RuntimeError
+        tmp.unlink(missing_ok=True)
+        full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc)
+        cause = "the disk is full" if full else f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ''}"
+        raise CheckpointWriteError(f"{path}: could not be written ({cause}); the previous file is kept") from None
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load a checkpoint, check its envelope and its digest, and bring it to version 2.
+
+    Raises:
+        InputFileError: missing, truncated, corrupt (digest mismatch), not a
+            checkpoint, or another version.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: checkpoint file not found")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch.load raises many types on corrupt bytes (even IndexError)
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        raise InputFileError(f"{path}: not a readable checkpoint, truncated or corrupt ({type(exc).__name__}: {first[:200]})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise InputFileError(f"{path}: not a vacc DDQN checkpoint (no format tag {CHECKPOINT_FORMAT!r})")
+    version = ckpt.get("version")
+    if version not in READABLE_VERSIONS:
+        raise InputFileError(f"{path}: checkpoint version {version!r}; this vacc reads versions {READABLE_VERSIONS}: use the vacc that wrote it")
+    if version >= 2 and ckpt.get("sha256") != digest(ckpt):
+        raise InputFileError(f"{path}: checkpoint is corrupt (its SHA-256 digest does not match its contents)")
+    if not isinstance(ckpt.get("config"), dict) or not isinstance(ckpt.get("model"), dict):
+        raise InputFileError(f"{path}: checkpoint lacks its config or model weights")
+    if version == 1:  # the two trainers' old layouts
+        ckpt["trainer"] = "streams" if ckpt.get("trainer") == "distributed" else "single"
+        if isinstance(ckpt.get("replay"), str):
+            ckpt["replay"] = [ckpt["replay"]]
+    return ckpt
+
+
+def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> Config:
+    """The :class:`Config` a checkpoint was trained with.
+
+    Raises:
+        InputFileError: a setting out of range.
+    """
+    return config_from(ckpt["config"], path, legacy=ckpt.get("version") == 1)
+
+
+def load_weights(module: nn.Module, state: dict[str, Any], path: str | Path, what: str = "model") -> None:
+    """``module.load_state_dict(state)``.
+
+    Raises:
+        InputFileError: the weights do not fit the network.
+    """
+    try:
+        module.load_state_dict(state)
+    except (RuntimeError, KeyError, TypeError) as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        detail = "; ".join(lines[1:4]) if len(lines) > 1 else (lines[0] if lines else "")
+        raise InputFileError(f"{path}: {what} weights do not fit the network (wrong shape or layers): {detail[:300]}") from None
+
+
+def save_policy(q: QNetwork, cfg: Config, path: str | Path, extra: dict[str, Any] | None = None) -> None:
+    """Write a policy-only checkpoint (weights + settings, < 5 MB), atomically.
+
+    Raises:
+        CheckpointWriteError: see :func:`atomic_save`.
+    """
+    atomic_save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "version": CHECKPOINT_VERSION,
+            "kind": "policy",
+            "config": config_dict(cfg),
+            "model": {k: v.detach().cpu() for k, v in q.state_dict().items()},
+            "extra": extra or {},
+        },
+        Path(path),
+    )
+
+
+def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[QNetwork, Config]:
+    """Load the Q-network of a policy or training checkpoint, in eval mode.
+
+    Raises:
+        InputFileError: missing, truncated, corrupt, wrong format/version, or wrong shapes.
+    """
+    ckpt = read_checkpoint(path)
+    cfg = checkpoint_config(ckpt, path)
+    q = QNetwork(cfg.frame_stack, N_ACTIONS, cfg.speed_scale)
+    load_weights(q, ckpt["model"], path)
+    return q.to(device).eval(), cfg
+
+
+def upgrade(path: str | Path) -> bool:
+    """Rewrite a version-1 checkpoint in this layout, with its digest; weights unchanged.
+
+    Returns:
+        Whether the file was rewritten (False: it already was version 2).
+
+    Raises:
+        InputFileError: not a readable checkpoint.
+        CheckpointWriteError: the rewrite failed (the file is untouched).
+    """
+    ckpt = read_checkpoint(path)
+    if ckpt["version"] == CHECKPOINT_VERSION:
+        return False
+    ckpt["config"] = config_dict(checkpoint_config(ckpt, path))  # records the serial schedule they used
+    ckpt["version"] = CHECKPOINT_VERSION
+    if ckpt.get("kind") == "policy":
+        ckpt.pop("trainer", None)
+        ckpt.pop("replay", None)
+    atomic_save({k: v for k, v in ckpt.items() if k != "sha256"}, Path(path))
+    return True
+
+
+if __name__ == "__main__":  # python -m agent_client.rl.checkpoint upgrade PATH...
+    import sys
+
+    if sys.argv[1:2] != ["upgrade"] or len(sys.argv) < 3:
+        sys.exit("usage: python -m agent_client.rl.checkpoint upgrade CHECKPOINT.pt...")
+    for name in sys.argv[2:]:
+        print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")

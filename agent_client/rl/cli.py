@@ -1,0 +1,172 @@
+"""`vacc train`: its options are generated from :class:`~agent_client.rl.config.Config`.
+
+One source of truth: each field's name gives the option (``total_steps`` is
+``--total-steps``, with the short names below kept from earlier releases), its
+default the default, its docstring the help text; ``Config`` itself checks the values,
+and a bad one is reported against its option.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import json
+import re
+import signal
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import click
+
+from agent_client.errors import ClientError
+from agent_client.preprocess import ZOOMS
+from agent_client.rewards import REWARDS
+from agent_client.rl.config import SCHEDULES, Config, ConfigError
+from protocol.scenarios import SCENARIOS
+
+__all__ = ["train", "config_options"]
+
+OPTION_NAMES = {"total_steps": "steps", "torch_threads": "threads"}  # names kept from earlier releases
+REQUIRED = ("reward", "total_steps")
+CHOICES: dict[str, tuple[Any, ...]] = {"reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS}
+
+
+@lru_cache(maxsize=1)
+def field_docs() -> dict[str, str]:
+    """Each :class:`Config` field's docstring (the string literal after it), whitespace folded."""
+    tree = ast.parse(inspect.getsource(Config))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for node, after in zip(body, body[1:], strict=False):
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+                docs[node.target.id] = re.sub(r"\s+", " ", after.value.value).strip()
+    return docs
+
+
+def option_name(field: str) -> str:
+    return "--" + OPTION_NAMES.get(field, field).replace("_", "-")
+
+
+def _option(f: dataclasses.Field[Any]) -> Callable[[Any], Any]:
+    """The click option of one Config field."""
+    name, default, kind = f.name, f.default, str(f.type)
+    common: dict[str, Any] = {"help": field_docs().get(name, ""), "show_default": name not in REQUIRED}
+    if name in REQUIRED:
+        common.update(required=True, show_default=False)
+    else:
+        common["default"] = default
+    if name in CHOICES:
+        choices = [str(c) for c in CHOICES[name]]
+        if not common.get("required"):
+            common["default"] = str(default)
+        return click.option(option_name(name), name, type=click.Choice(choices), **common)
+    if kind == "bool":
+        flag = OPTION_NAMES.get(name, name).replace("_", "-")
+        return click.option(f"--{flag}/--no-{flag}", name, **common)
+    if kind.startswith("tuple"):
+        common["default"] = ",".join(default)
+        return click.option(option_name(name), name, metavar="A,B,...", **common)
+    if kind.endswith("| None"):
+        base = {"float": float, "int": int}.get(kind.split()[0], click.Path(dir_okay=False, exists=True))
+        return click.option(option_name(name), name, type=base, **common)
+    return click.option(option_name(name), name, type={"int": int, "float": float, "str": str}[kind], **common)
+
+
+def config_options(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate ``command`` with one option per :class:`Config` field, in field order."""
+    for f in reversed(dataclasses.fields(Config)):
+        command = _option(f)(command)
+    return command
+
+
+def make_config(values: dict[str, Any]) -> Config:
+    """A :class:`Config` from the option values; a bad one fails against its option.
+
+    Raises:
+        click.BadParameter: naming the option.
+    """
+    kw: dict[str, Any] = {}
+    for f in dataclasses.fields(Config):
+        v = values[f.name]
+        if f.name in CHOICES:
+            v = type(f.default)(v) if not isinstance(f.default, str) else v
+        elif str(f.type).startswith("tuple"):
+            v = tuple(t.strip() for t in v.split(",") if t.strip())
+        elif str(f.type) == "float | None" and v is not None and v <= 0:
+            v = None  # 0: "none", e.g. whole trajectories
+        kw[f.name] = v
+    if not kw["eval_trajectories"]:
+        raise click.BadParameter("give at least one trajectory", param_hint=option_name("eval_trajectories"))
+    try:
+        return Config(**kw)
+    except ConfigError as exc:
+        raise click.BadParameter(str(exc), param_hint=option_name(exc.field)) from None
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
+
+
+@click.command("train")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
+@click.option("--overwrite", is_flag=True, help="Start afresh in an --out that already holds a run (its files are replaced).")
+@click.option("--quiet", is_flag=True, help="No progress line.")
+@click.option("--ray", "use_ray", is_flag=True, help="Run the servers and their actors as Ray actors (pip install 'vacc[ray]').")
+@click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT of a running cluster (default: a local Ray instance).")
+@click.option("--actor-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True), help="With --ray: CPUs reserved per actor (its server included).")
+@click.option("--max-restarts", default=3, show_default=True, type=click.IntRange(min=0), help="With --servers > 1 or --ray: restarts of a dead actor before it is given up.")
+@config_options
+def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, ray_address: str | None, actor_cpus: float,
+          max_restarts: int, **values: Any) -> None:  # fmt: skip
+    """Train a Double-DQN policy from camera frames against spawned simulator servers.
+
+    Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay-STEP.npz) and
+    OUT/best.pt (the policy with the best evaluation; drive it with
+    `vacc drive --controller ddqn --checkpoint OUT/best.pt`).
+
+    By default the simulator and acting run on one core and the gradient steps on
+    another (--schedule parallel); --schedule serial is the one-core schedule the
+    shipped models were trained with. --servers K runs K simulator servers, each with
+    its own acting process, feeding one learner; --ray runs them as Ray actors.
+    """
+    cfg = make_config(values)
+    if ray_address is not None and not use_ray:
+        raise click.UsageError("--ray-address needs --ray")
+    distributed = use_ray or cfg.servers > 1
+    run = Path(out)
+    if resume and not (run / "latest.pt").exists():
+        raise click.UsageError(f"--resume: {run / 'latest.pt'} does not exist")
+    if not resume and not overwrite and (run / "config.json").exists():
+        raise click.UsageError(f"--out {run} already holds a run: add --resume to continue it, or --overwrite to start afresh")
+    # A plain `kill` or Ctrl-C reaps the spawned servers and actors (the finally blocks
+    # run); both leave through SystemExit, one shutdown path.
+    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGINT, _terminate)
+    try:
+        if distributed:
+            from agent_client.rl.distributed import import_ray, train_distributed
+
+            if use_ray:
+                import_ray()  # before any work: say how to install it
+            summary = train_distributed(cfg, out, resume=resume, progress=not quiet, use_ray=use_ray,
+                                        ray_address=ray_address, actor_cpus=actor_cpus, max_restarts=max_restarts)  # fmt: skip
+        else:
+            from agent_client.rl.train import train as run_training
+
+            summary = run_training(cfg, out, resume=resume, progress=not quiet)
+    except ClientError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
+    if distributed:
+        click.echo(
+            f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "
+            f"restarts {summary['restarts_by_actor']}, {summary['env_steps_per_s']:.0f} env steps/s"
+        )
+    for r in summary["last_eval"]:
+        click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
+    (run / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")

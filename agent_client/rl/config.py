@@ -1,0 +1,182 @@
+"""The settings of a training run: one frozen dataclass, one docstring per field.
+
+``vacc train`` generates its options from these fields (:mod:`agent_client.rl.cli`),
+so the docstrings below are the ``--help`` text and the defaults are the CLI's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from agent_client.errors import InputFileError
+from agent_client.preprocess import ZOOMS
+from agent_client.rl.evaluation import eval_episode
+
+__all__ = ["Config", "ConfigError", "SCHEDULES", "RESUMABLE_CHANGES", "config_dict", "config_from"]
+
+SCHEDULES = ("parallel", "serial")
+
+# Settings a resumed run may change: none of them touches the training RNG or the
+# learning (evaluations and checkpoints draw nothing from it), so a run resumed with
+# other values stays bit-identical to one that never stopped.
+RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
+
+
+class ConfigError(ValueError):
+    """A setting out of range; ``field`` names it (the CLI maps it to its option)."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+@dataclass(frozen=True)
+class Config:
+    """Every setting of a training run. The CLI only fills this in."""
+
+    reward: str = "gap"
+    """Table 1 reward: "gap" (gap term only) or "force" (gap + force terms)."""
+    scenario: str = "ice"
+    """Simulator scenario: "ice" (eq. 7 lead trajectories) or "ev" (real traces)."""
+    total_steps: int = 200_000
+    """Environment steps (control periods of 0.1 s) to train for, in total."""
+    seed: int = 1
+    """Seeds numpy, torch, python random and the stream of episode seeds."""
+    schedule: str = "parallel"
+    """"parallel": the simulator and acting on one core, the gradient steps on the other;
+    the actor acts with the weights of exactly one update ago (bit-identical for a seed).
+    "serial": act, then update, on one core (the schedule the shipped models were trained
+    with; docs/training.md)."""
+    learning_rate: float = 1e-4
+    """Adam step size."""
+    adam_eps: float = 1.5e-4
+    """Adam epsilon (Dopamine/CleanRL value for DQN)."""
+    buffer_size: int = 100_000
+    """Replay memory capacity in transitions (one 105x150 frame each: 1.6 GB at 1e5)."""
+    gamma: float = 0.99
+    """Discount per control period (0.99 at 0.1 s: a horizon of about 10 s)."""
+    target_sync_every: int = 2_000
+    """Steps between copies of the online network into the target network."""
+    batch_size: int = 32
+    """Transitions per gradient step."""
+    start_e: float = 1.0
+    """ε at step 0."""
+    end_e: float = 0.05
+    """ε after exploration_steps."""
+    exploration_steps: int = 60_000
+    """Steps over which ε falls linearly (absolute, so a resumed run keeps its schedule)."""
+    learning_starts: int = 5_000
+    """Steps of acting before the first gradient step."""
+    train_every: int = 4
+    """Environment steps per gradient step."""
+    max_grad_norm: float = 10.0
+    """Gradient norm clip."""
+    n_step: int = 1
+    """Rewards summed before bootstrapping (n-step return, cut at episode ends)."""
+    absorbing_terminal: bool = True
+    """Value a termination (collision, gap > 300 m) as its reward forever, r / (1 - γ),
+    instead of 0: with Table 1's rewards, 0 would make crashing or dropping back past
+    300 m look better than a long stretch of small negative rewards."""
+    frame_stack: int = 8
+    """Frames (and host speeds) per observation (paper: 8)."""
+    stack_stride: int = 2
+    """Control steps between stacked frames (2: the stack spans 1.4 s)."""
+    speed_scale: float = 30.0
+    """[m/s] host speeds are divided by this before the network."""
+    zoom: int = 1
+    """Camera window: 1, the paper's (the 400x400 camera halved); 2, the same 105x150
+    window at full resolution (the lead at 55 m twice as wide). Checkpoints record it."""
+    episode_seconds: float | None = 60.0
+    """[s] training episodes are truncated here (0 or None: the trajectory's 240 s)."""
+    eval_every: int = 25_000
+    """Steps between evaluations on eval_trajectories (0: only at the end)."""
+    eval_trajectories: tuple[str, ...] = ("test-1", "test-2", "test-3", "test-4")
+    """Comma-separated evaluation trajectories; they pick best.pt: test-1..test-4 (seed 0,
+    as vacc drive uses), or random:SEED for a selection set held out from the tests."""
+    eval_seconds: float | None = None
+    """[s] evaluation episode length (0 or None: the whole 240 s trajectory)."""
+    checkpoint_every: int = 10_000
+    """Steps between full checkpoints (taken at the next episode end)."""
+    init_from: str | None = None
+    """A policy checkpoint whose weights start the run (fine-tuning, e.g. force from gap)."""
+    torch_threads: int = 1
+    """CPU threads for torch per thread of work (the machine is shared)."""
+    cuda: bool = True
+    """Use CUDA when it is available."""
+    log_every: int = 500
+    """Steps between loss/Q-value scalars."""
+    servers: int = 1
+    """Simulator servers, each with its own acting process, feeding one learner
+    (docs/scale-out.md). 1: the single-stream loop."""
+    weight_sync_every: int = 20
+    """(servers > 1) gradient steps between broadcasts of the learner's weights to the
+    actors (M)."""
+    actor_batch: int = 50
+    """(servers > 1) transitions an actor collects per delivery to the learner."""
+
+    def __post_init__(self) -> None:
+        from agent_client.rewards import REWARDS
+
+        def bad(name: str, message: str) -> ConfigError:
+            return ConfigError(name, f"{name} {message}")
+
+        if self.reward not in REWARDS:
+            raise bad("reward", f"{self.reward!r} is not one of {sorted(REWARDS)}")
+        if self.scenario not in ("ice", "ev"):
+            raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
+        if self.schedule not in SCHEDULES:
+            raise bad("schedule", f"{self.schedule!r} is not one of {SCHEDULES}")
+        for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every",
+                     "frame_stack", "stack_stride", "servers", "weight_sync_every", "actor_batch", "torch_threads",
+                     "exploration_steps", "checkpoint_every", "log_every"):  # fmt: skip
+            if getattr(self, name) < 1:
+                raise bad(name, "must be >= 1")
+        for name in ("learning_starts", "eval_every"):
+            if getattr(self, name) < 0:
+                raise bad(name, "must be >= 0")
+        if not 0.0 <= self.gamma < 1.0:
+            raise bad("gamma", "must be in [0, 1)")
+        for name in ("start_e", "end_e"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise bad(name, "must be in [0, 1]")
+        if not self.learning_rate > 0.0:
+            raise bad("learning_rate", "must be > 0")
+        if self.zoom not in ZOOMS:
+            raise bad("zoom", f"must be one of {ZOOMS}")
+        for name in self.eval_trajectories:
+            try:
+                eval_episode(name)  # a typo fails here, not at the first evaluation hours later
+            except ValueError as exc:
+                raise ConfigError("eval_trajectories", str(exc)) from None
+
+
+def config_dict(cfg: Config) -> dict[str, Any]:
+    """The config as JSON-ready builtins (what ``config.json`` and checkpoints hold)."""
+    d = dataclasses.asdict(cfg)
+    d["eval_trajectories"] = list(cfg.eval_trajectories)
+    return d
+
+
+def config_from(d: dict[str, Any], path: Any, *, legacy: bool = False) -> Config:
+    """A :class:`Config` from :func:`config_dict`'s output; unknown keys are ignored.
+
+    Args:
+        d: the dict.
+        path: where it came from, for the error.
+        legacy: a version-1 checkpoint, written before ``schedule`` existed (serial).
+
+    Raises:
+        InputFileError: a setting out of range.
+    """
+    names = {f.name for f in dataclasses.fields(Config)}
+    known = {k: v for k, v in d.items() if k in names}
+    if "eval_trajectories" in known:
+        known["eval_trajectories"] = tuple(known["eval_trajectories"])
+    if legacy:
+        known.setdefault("schedule", "serial")
+    try:
+        return Config(**known)
+    except (TypeError, ValueError) as exc:
+        raise InputFileError(f"{path}: bad config: {exc}") from None

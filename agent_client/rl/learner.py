@@ -1,0 +1,370 @@
+"""The one learner of both trainers: networks, optimiser, seeding, the Double-DQN update,
+target sync, checkpoint and resume, evaluation.
+
+The single-stream loop (:mod:`agent_client.rl.train`) and the K-stream loop
+(:mod:`agent_client.rl.distributed`) only feed it. With the parallel schedule its
+gradient steps run on a worker thread (the second core) while the loop acts; see
+:meth:`Learner.train_step` for the schedule that keeps the run bit-identical.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import random
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from torch.nn.utils import parameters_to_vector
+
+from agent_client.errors import InputFileError
+from agent_client.rl.checkpoint import (
+    CHECKPOINT_FORMAT,
+    CHECKPOINT_VERSION,
+    atomic_save,
+    checkpoint_config,
+    load_policy,
+    load_weights,
+    read_checkpoint,
+    save_policy,
+)
+from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
+from agent_client.rl.evaluation import eval_episode, evaluate, score
+from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action
+from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
+from agent_client.rl.scalars import ScalarLog
+
+__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT"]
+
+SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
+
+
+def double_dqn_target(
+    returns: torch.Tensor,
+    terminated: torch.Tensor,
+    next_q_online: torch.Tensor,
+    next_q_target: torch.Tensor,
+    discounts: torch.Tensor,
+    terminal_values: torch.Tensor,
+) -> torch.Tensor:
+    """TD target y = G + γ^m Q_target(s', argmax_a Q_online(s', a)), cut at terminations.
+
+    The online network picks the next action, the target network scores it.
+    Truncated transitions (time limit) bootstrap like any other; only ``terminated``
+    ones do not: they take ``terminal_values`` instead (0, or the terminal reward
+    forever with :attr:`Config.absorbing_terminal`). One-step: G = r, γ^m = γ.
+
+    Args:
+        returns: ``[B]`` G = Σ_{k<m} γ^k r_k.
+        terminated: ``[B]`` bool, the episode terminated within the m steps.
+        next_q_online: ``[B, A]`` online Q-values of the observations m steps on.
+        next_q_target: ``[B, A]`` target Q-values of the same.
+        discounts: ``[B]`` γ^m.
+        terminal_values: ``[B]`` the value after a termination.
+
+    Returns:
+        ``[B]`` targets.
+    """
+    next_actions = next_q_online.argmax(dim=1, keepdim=True)  # [B, 1]: online net picks
+    next_values = next_q_target.gather(1, next_actions).squeeze(1)  # [B]: target net scores
+    done = terminated.float()  # [B]
+    bootstrap = (1.0 - done) * next_values + done * terminal_values  # [B]
+    return returns + discounts * bootstrap  # [B]
+
+
+class Learner:
+    """Owns everything a training run learns with; the loops only feed it.
+
+    Construction seeds python, numpy and torch (the one seeding block), builds the
+    networks and the optimiser, then either resumes ``run_dir/latest.pt`` or starts
+    from ``cfg.init_from``, writes ``config.json`` and opens the scalar log.
+
+    Args:
+        cfg: the settings.
+        run_dir: ``runs/<name>``.
+        resume: continue from ``run_dir/latest.pt``.
+        trainer: "single" or "streams": which loop's checkpoints this run writes.
+        server_args: extra ``python -m sim_server`` arguments for the evaluation server.
+        on_eval: called with (step, results) after each evaluation.
+
+    Attributes:
+        rng: the numpy generator of replay sampling (and, in the serial schedule, of
+            everything the loop draws).
+        acting_rng: the loop's generator for episode seeds, ε and random actions.
+        saved: the loop state of the resumed checkpoint ({} for a new run).
+        replay_names: the replay files that go with it.
+
+    Raises:
+        InputFileError: a bad checkpoint to resume or to start from.
+    """
+
+    def __init__(self, cfg: Config, run_dir: str | Path, *, resume: bool = False, trainer: str = "single",
+                 server_args: tuple[str, ...] = (), on_eval: Callable[[int, list[dict[str, Any]]], None] | None = None):  # fmt: skip
+        self.cfg, self.trainer, self.on_eval = cfg, trainer, on_eval
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.server_args = ("--session-timeout", str(SESSION_TIMEOUT), *server_args)
+        self.parallel = cfg.schedule == "parallel" and trainer == "single"
+
+        # --- seeding: the one block. Everything random draws from these. -----------
+        random.seed(cfg.seed)
+        torch.manual_seed(cfg.seed)
+        torch.backends.cudnn.deterministic = True
+        torch.set_num_threads(cfg.torch_threads)
+        self.rng = np.random.default_rng(cfg.seed)
+        # The serial schedule draws everything from one generator (as the shipped models
+        # were trained); the parallel one acts from its own, so sampling never races it.
+        self.acting_rng = np.random.default_rng([cfg.seed, 1]) if self.parallel else self.rng
+        self.device = torch.device("cuda" if cfg.cuda and torch.cuda.is_available() else "cpu")
+
+        self.q = self._network()
+        self.target = self._network()
+        self.target.load_state_dict(self.q.state_dict())
+        self.acting = self._network().eval() if self.parallel else self.q
+        self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
+        self.updates = 0
+        self.best_score = math.inf
+        self.saved: dict[str, Any] = {}
+        self.replay_names: list[str] = []
+        if resume:
+            self._resume()
+        else:
+            self._init_from()
+        if self.parallel:
+            if not resume:
+                self.acting.load_state_dict(self.q.state_dict())
+            self._worker: ThreadPoolExecutor | None = ThreadPoolExecutor(1, thread_name_prefix="vacc-learner")
+        else:
+            self._worker = None
+        self._jobs: list[Future[Any]] = []
+        self._pending_scalars: list[tuple[str, float, int]] = []
+        (self.run_dir / "config.json").write_text(json.dumps(config_dict(cfg), indent=2) + "\n")
+        self.log = ScalarLog(self.run_dir, resume_step=self.saved.get("global_step") if resume else None)
+        self.last_eval: list[dict[str, Any]] = []
+        self._eval_env: Any = None
+
+    def _network(self) -> QNetwork:
+        return QNetwork(self.cfg.frame_stack, N_ACTIONS, self.cfg.speed_scale).to(self.device)
+
+    # ------------------------------------------------------------------ start
+
+    def _init_from(self) -> None:
+        """Start both networks from ``cfg.init_from`` (fine-tuning), if set."""
+        cfg = self.cfg
+        if cfg.init_from is None:
+            return
+        init_q, init_cfg = load_policy(cfg.init_from)
+        if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
+            raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
+        self.q.load_state_dict(init_q.state_dict())
+        self.target.load_state_dict(init_q.state_dict())
+
+    def _resume(self) -> None:
+        path = self.run_dir / "latest.pt"
+        ckpt = read_checkpoint(path)
+        if ckpt.get("kind") != "training":
+            raise InputFileError(f"{path}: a policy-only checkpoint cannot be resumed")
+        if ckpt["trainer"] != self.trainer:
+            what = "K-stream trainer; resume it with --servers/--ray" if ckpt["trainer"] == "streams" else "single-stream trainer; resume it without --servers/--ray"
+            raise InputFileError(f"{path}: written by the {what}")
+        self._check_resume_config(ckpt, path)
+        load_weights(self.q, ckpt["model"], path)
+        load_weights(self.target, ckpt["target"], path, "target")
+        if self.parallel:
+            load_weights(self.acting, ckpt.get("acting", {}), path, "acting")
+        try:
+            self.optimizer.load_state_dict(ckpt["optimizer"])
+            rng = ckpt["rng"]
+            self.rng.bit_generator.state = rng["numpy"]
+            if self.parallel:
+                self.acting_rng.bit_generator.state = rng["acting"]
+            torch.set_rng_state(rng["torch"])
+            if "python" in rng:
+                random.setstate((rng["python_version"], tuple(rng["python"]), None))
+            self.saved = dict(ckpt["state"])
+            self.replay_names = list(ckpt["replay"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise InputFileError(f"{path}: incomplete training state ({type(exc).__name__}: {exc})") from None
+        self.updates = int(self.saved.get("updates", 0))
+        self.best_score = float(self.saved.get("best_score", math.inf))
+
+    def _check_resume_config(self, ckpt: dict[str, Any], path: Path) -> None:
+        """A resumed run must have the saved run's settings, but for ``RESUMABLE_CHANGES``."""
+        saved = checkpoint_config(ckpt, path)
+        cfg = self.cfg
+        if dataclasses.replace(saved, **{k: getattr(cfg, k) for k in RESUMABLE_CHANGES}) != cfg:
+            diff = {k: (v, getattr(cfg, k)) for k, v in dataclasses.asdict(saved).items() if k not in RESUMABLE_CHANGES and v != getattr(cfg, k)}
+            raise InputFileError(f"{path}: the run was trained with other settings; differences (saved, given): {diff}")
+
+    # ------------------------------------------------------------------- acting
+
+    def act(self, obs: dict[str, np.ndarray]) -> int:
+        """The greedy action of the acting network (one update behind in the parallel schedule)."""
+        return greedy_action(self.acting, obs["frames"], obs["speeds"])
+
+    def flat_weights(self) -> np.ndarray:
+        """The online network's parameters as one float32 vector on the CPU (2.8 MB)."""
+        return parameters_to_vector(self.q.parameters()).detach().cpu().numpy().astype(np.float32, copy=False)
+
+    # ------------------------------------------------------------------ learning
+
+    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float] | None:
+        """One Double-DQN gradient step on a replay batch; logs losses at ``log_step``.
+
+        Returns:
+            (Huber loss, mean Q of the taken actions) when ``log_step`` is given.
+        """
+        cfg, dev = self.cfg, self.device
+        frames, speeds = b.frames.to(dev), b.speeds.to(dev)
+        next_frames, next_speeds = b.next_frames.to(dev), b.next_speeds.to(dev)
+        with torch.no_grad():
+            next_q_online = self.q(next_frames, next_speeds)  # [B, A]
+            next_q_target = self.target(next_frames, next_speeds)  # [B, A]
+            # after a termination: the terminal reward forever, r / (1 - γ), or 0
+            terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
+            td_target = double_dqn_target(
+                b.returns.to(dev), b.terminated.to(dev), next_q_online, next_q_target, b.discounts.to(dev), terminal_values
+            )  # [B]
+        q_taken = self.q(frames, speeds).gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
+        loss = F.smooth_l1_loss(q_taken, td_target)  # Huber
+        self.optimizer.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
+        self.optimizer.step()
+        self.updates += 1
+        if log_step is None:
+            return None
+        return loss.item(), q_taken.mean().item()
+
+    def sync_target(self) -> None:
+        """Copy the online network into the target network (after any update in flight)."""
+        self._run(lambda: self.target.load_state_dict(self.q.state_dict()))
+
+    def train_step(self, memory: ReplayMemory | StreamReplay, step: int) -> None:
+        """The gradient step due at env step ``step``.
+
+        Serial schedule: sample and update now. Parallel schedule: wait for the previous
+        update, hand its weights to the acting network, sample (on this thread, so the
+        batch holds exactly the transitions up to ``step``), and start the update on
+        the worker thread; the loop acts the next ``train_every`` steps meanwhile. So
+        the actor always acts with the weights of exactly one update ago, and the run
+        is a function of the seed alone.
+        """
+        cfg = self.cfg
+        log_step = step if step % cfg.log_every < cfg.train_every else None
+        if self._worker is None:
+            self._log_losses(self.update(memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma), log_step), log_step)
+            return
+        self.wait()
+        self.acting.load_state_dict(self.q.state_dict())
+        batch = memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
+        self._jobs.append(self._worker.submit(lambda: self._pending(self.update(batch, log_step), log_step)))
+
+    def _pending(self, losses: tuple[float, float] | None, step: int | None) -> None:
+        if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
+            self._pending_scalars += [("losses/td_loss", losses[0], step), ("losses/q_values", losses[1], step)]
+
+    def _log_losses(self, losses: tuple[float, float] | None, step: int | None) -> None:
+        self._pending(losses, step)
+        for name, value, at in self._pending_scalars:
+            self.log.add(name, value, at)
+        self._pending_scalars.clear()
+
+    def _run(self, job: Callable[[], Any]) -> None:
+        """Run ``job`` after the work already queued (now, in the serial schedule)."""
+        if self._worker is None:
+            job()
+        else:
+            self._jobs.append(self._worker.submit(job))
+
+    def wait(self) -> None:
+        """Finish the queued gradient steps (re-raising their errors) and log their scalars."""
+        jobs, self._jobs = self._jobs, []
+        for job in jobs:
+            job.result()
+        self._log_losses(None, None)
+
+    # --------------------------------------------------------------- evaluation
+
+    def evaluate(self, step: int) -> list[dict[str, Any]]:
+        """Greedy episodes on ``cfg.eval_trajectories``; keeps ``best.pt``; returns the results."""
+        from agent_client.env import VisionACCEnv  # the env spawns a server; import late
+
+        cfg = self.cfg
+        self.wait()
+        if self._eval_env is None:
+            self._eval_env = VisionACCEnv(
+                scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
+                frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
+                episode_seconds=cfg.eval_seconds, server_args=self.server_args, zoom=cfg.zoom,
+            )  # fmt: skip
+        self.q.eval()
+        self.last_eval = evaluate(self.q, self._eval_env, cfg.eval_trajectories)
+        self.q.train()
+        s = score(self.log, self.last_eval, step)
+        if s < self.best_score:
+            self.best_score = s
+            save_policy(self.q, cfg, self.run_dir / "best.pt", {"step": step, "eval": self.last_eval})
+        self.log.flush()
+        if self.on_eval is not None:
+            self.on_eval(step, self.last_eval)
+        return self.last_eval
+
+    # -------------------------------------------------------------- checkpoints
+
+    def checkpoint(self, state: dict[str, Any], memory: ReplayMemory | StreamReplay) -> None:
+        """Write ``latest.pt`` with the loop's ``state`` and the replay that goes with it.
+
+        The replay first, under new names; then ``latest.pt``, which names them; only
+        then the old replay files go. A kill -9 anywhere leaves a resumable pair.
+
+        Raises:
+            CheckpointWriteError: a write failed; the previous checkpoint still resumes.
+        """
+        self.wait()
+        step = int(state["global_step"])
+        if isinstance(memory, StreamReplay):
+            names = memory.save(self.run_dir, step)
+        else:
+            names = [f"replay-{step}.npz"]
+            memory.save(self.run_dir / names[0], step)
+        rng: dict[str, Any] = {
+            "numpy": self.rng.bit_generator.state,
+            "torch": torch.get_rng_state(),
+            "python": list(random.getstate()[1]),
+            "python_version": random.getstate()[0],
+        }
+        if self.parallel:
+            rng["acting"] = self.acting_rng.bit_generator.state
+        payload: dict[str, Any] = {
+            "format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "kind": "training", "trainer": self.trainer,
+            "config": config_dict(self.cfg), "model": self.q.state_dict(), "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(), "replay": names, "rng": rng,
+            "state": {**state, "updates": self.updates, "best_score": self.best_score},
+        }  # fmt: skip
+        if self.parallel:
+            payload["acting"] = self.acting.state_dict()
+        atomic_save(payload, self.run_dir / "latest.pt")
+        for old in [*self.run_dir.glob("replay-*.npz"), self.run_dir / "replay.npz"]:
+            if old.name not in names and old.exists():
+                old.unlink()
+        self.log.flush()
+
+    def close(self) -> None:
+        """Stop the worker, close the log and the evaluation server. Safe to call twice."""
+        try:
+            if self._worker is not None:
+                self._worker.shutdown(wait=True, cancel_futures=True)
+                self._worker = None
+        finally:
+            self.log.close()
+            if self._eval_env is not None:
+                self._eval_env.close()
+                self._eval_env = None

@@ -1,0 +1,85 @@
+"""Run scalars (``scalars.csv``, and TensorBoard events when installed) and the progress line.
+
+Metric names are grouped as CleanRL's: ``charts/``, ``losses/``, ``eval/``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["ScalarLog", "Progress"]
+
+
+class ScalarLog:
+    """``scalars.csv`` (``step,name,value,wall_s``), plus TensorBoard if installed."""
+
+    def __init__(self, run_dir: Path, resume_step: int | None = None):
+        path = run_dir / "scalars.csv"
+        if resume_step is not None and path.exists():  # drop rows the resumed run will redo
+            with open(path, newline="") as f:
+                rows = [r for r in csv.reader(f)][1:]
+            kept = [r for r in rows if r and int(r[0]) <= resume_step]
+            with open(path, "w", newline="") as f:
+                csv.writer(f).writerows([["step", "name", "value", "wall_s"], *kept])
+            self._file = open(path, "a", newline="")
+        else:
+            self._file = open(path, "w", newline="")
+            self._file.write("step,name,value,wall_s\n")
+        self._csv = csv.writer(self._file)
+        self._t0 = time.time()
+        self._tb = None
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._tb = SummaryWriter(str(run_dir))
+        except ImportError:  # tensorboard is an optional extra
+            pass
+
+    def add(self, name: str, value: float, step: int) -> None:
+        self._csv.writerow([step, name, f"{value:.6g}", f"{time.time() - self._t0:.1f}"])
+        if self._tb is not None:
+            self._tb.add_scalar(name, value, step)
+
+    def flush(self) -> None:
+        self._file.flush()
+        if self._tb is not None:
+            self._tb.flush()
+
+    def close(self) -> None:
+        self._file.close()
+        if self._tb is not None:
+            self._tb.close()
+
+
+class Progress:
+    """A one-line progress display on stderr: steps, steps/s, ε, recent return."""
+
+    def __init__(self, total: int, enabled: bool = True, period: float = 1.0):
+        self.total, self.enabled, self.period = total, enabled, period
+        self.tty = sys.stderr.isatty()
+        self._last = 0.0
+        if enabled and not self.tty:
+            self.period = max(period, 30.0)  # a log file gets a line every 30 s
+
+    def update(self, step: int, sps: float, epsilon: float, recent_return: float, force: bool = False, extra: str = "") -> None:
+        now = time.monotonic()
+        if not self.enabled or (now - self._last < self.period and not force):
+            return
+        self._last = now
+        width = 24
+        filled = int(width * step / self.total)
+        eta = (self.total - step) / sps if sps > 0 else math.inf
+        line = (
+            f"[{'#' * filled}{'-' * (width - filled)}] {step}/{self.total} "
+            f"{sps:5.0f} steps/s  eps {epsilon:.3f}  return {recent_return:8.2f}  eta {eta / 60:5.1f} min"
+        ) + (f"  {extra}" if extra else "")
+        sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            sys.stderr.write("\n")

@@ -1,0 +1,183 @@
+"""Double DQN from pixels, one acting stream: the loop that feeds the :class:`Learner`.
+
+Read top to bottom, as CleanRL's ``dqn_atari.py``: seed and build (the learner),
+then act ε-greedily, store, and take a gradient step every ``train_every`` steps;
+evaluate and checkpoint on their step grids. ``vacc train`` fills in the
+:class:`Config` and calls :func:`train`.
+
+The network sees 8 stacked preprocessed camera frames and the 8 matching host speeds,
+nothing else: the gap feeds only the reward. Training talks to a real simulator
+server process over UDP through :class:`agent_client.env.VisionACCEnv`.
+
+Run folder ``runs/<name>/``: ``config.json``; ``scalars.csv`` (``step,name,value,wall_s``;
+TensorBoard events too if installed); ``latest.pt`` + ``replay-<step>.npz``, written at
+episode ends, so a resumed run continues exactly; ``best.pt``, the policy with the best
+evaluation so far (< 5 MB).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent_client.rl.config import Config
+from agent_client.rl.learner import Learner
+from agent_client.rl.network import N_ACTIONS, linear_schedule
+from agent_client.rl.replay import ReplayMemory
+from agent_client.rl.scalars import Progress
+
+__all__ = ["train", "LoopState"]
+
+
+@dataclass
+class LoopState:
+    """What a resumed run needs of the loop besides the learner and the replay memory."""
+
+    global_step: int = 0
+    episodes: int = 0
+    recent_returns: list[float] = field(default_factory=list)
+
+
+@dataclass
+class _Schedule:
+    """The evaluation and checkpoint grids (on the eval_every grid, so that a resumed
+    run evaluates where it would have)."""
+
+    next_eval: float
+    next_checkpoint: int
+    last_eval_step: int = -1
+
+    @classmethod
+    def at(cls, step: int, cfg: Config) -> _Schedule:
+        next_eval = (step // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else math.inf
+        return cls(next_eval, step + cfg.checkpoint_every)
+
+
+def train(
+    cfg: Config,
+    run_dir: str | Path,
+    *,
+    resume: bool = False,
+    progress: bool = True,
+    server_args: tuple[str, ...] = (),
+    on_eval: Callable[[int, list[dict[str, Any]]], None] | None = None,
+) -> dict[str, Any]:
+    """Train a DDQN policy against a spawned simulator server; write the run folder.
+
+    Args:
+        cfg: the settings (with ``resume``, those of the run being resumed must match,
+            but for :data:`~agent_client.rl.config.RESUMABLE_CHANGES`).
+        run_dir: ``runs/<name>``.
+        resume: continue from ``run_dir/latest.pt`` and the replay file it names.
+        progress: show the progress line on stderr.
+        server_args: extra ``python -m sim_server`` arguments for the spawned servers.
+        on_eval: called with (step, results) after each evaluation.
+
+    Returns:
+        Summary: steps, episodes, best score, last evaluation, wall time [s].
+
+    Raises:
+        InputFileError: ``resume`` with a missing or bad checkpoint or replay file.
+        CheckpointWriteError: a checkpoint could not be written (the last good one stays).
+    """
+    from agent_client.env import VisionACCEnv  # the env spawns servers; import late
+    from agent_client.errors import InputFileError
+
+    if cfg.servers != 1:
+        raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
+    learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride)
+    state = LoopState(**{k: v for k, v in learner.saved.items() if k in LoopState.__dataclass_fields__})
+    env = None
+    try:
+        if resume:
+            replay_path = learner.run_dir / learner.replay_names[0]
+            if memory.load(replay_path) != state.global_step:
+                raise InputFileError(f"{replay_path}: saved at a step other than latest.pt's {state.global_step}")
+        env = VisionACCEnv(
+            scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
+            stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
+        )  # fmt: skip
+        wall_s = _loop(cfg, learner, memory, env, state, progress)
+    finally:
+        learner.close()
+        if env is not None:
+            env.close()
+    return {
+        "steps": state.global_step,
+        "episodes": state.episodes,
+        "updates": learner.updates,
+        "best_score": learner.best_score,
+        "last_eval": learner.last_eval,
+        "wall_s": wall_s,
+        "schedule": cfg.schedule,
+        "replay_bytes_per_transition": memory.nbytes / memory.capacity,
+    }
+
+
+def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: LoopState, progress: bool) -> float:
+    """Act, store, learn, evaluate and checkpoint until ``cfg.total_steps``; returns the wall time [s]."""
+    rng, log = learner.acting_rng, learner.log
+    bar = Progress(cfg.total_steps, enabled=progress)
+    recent = deque(state.recent_returns, maxlen=20)
+    grid = _Schedule.at(state.global_step, cfg)
+    t_start, steps_at_start = time.perf_counter(), state.global_step
+
+    def sps() -> float:
+        return (state.global_step - steps_at_start) / max(time.perf_counter() - t_start, 1e-9)
+
+    try:
+        while state.global_step < cfg.total_steps:
+            obs, _ = env.reset(options={"seed": int(rng.integers(2**31))})
+            memory.start(obs)
+            episode_return, episode_len, done = 0.0, 0, False
+            while not done and state.global_step < cfg.total_steps:
+                epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
+                action = int(rng.integers(N_ACTIONS)) if rng.random() < epsilon else learner.act(obs)
+                obs, reward, terminated, truncated, _ = env.step(action)
+                memory.add(action, reward, terminated, truncated, obs)
+                episode_return += reward
+                episode_len += 1
+                done = terminated or truncated
+                state.global_step += 1
+                step = state.global_step
+                if step > cfg.learning_starts and step % cfg.train_every == 0:
+                    learner.train_step(memory, step)
+                if step % cfg.target_sync_every == 0:
+                    learner.sync_target()
+                bar.update(step, sps(), epsilon, float(np.mean(recent)) if recent else float("nan"))
+            if done:  # a whole episode (not one cut by the step budget)
+                state.episodes += 1
+                recent.append(episode_return)
+                for name, value in (("episodic_return", episode_return), ("episodic_length", episode_len),
+                                    ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()), ("epsilon", epsilon)):  # fmt: skip
+                    log.add(f"charts/{name}", value, state.global_step)
+            state.recent_returns = list(recent)
+            _evaluate_and_checkpoint(cfg, learner, memory, state, grid)
+        final_sps = sps()
+        learner.wait()
+        bar.update(state.global_step, final_sps, linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step),
+                   float(np.mean(recent)) if recent else float("nan"), force=True)  # fmt: skip
+    finally:
+        bar.close()
+    return time.perf_counter() - t_start
+
+
+def _evaluate_and_checkpoint(cfg: Config, learner: Learner, memory: ReplayMemory, state: LoopState, grid: _Schedule) -> None:
+    """At an episode end: evaluate and checkpoint when their grids say so, and at the end."""
+    finished = state.global_step >= cfg.total_steps
+    if cfg.eval_trajectories and (state.global_step >= grid.next_eval or (finished and grid.last_eval_step != state.global_step)):
+        learner.evaluate(state.global_step)
+        grid.last_eval_step = state.global_step
+        while grid.next_eval <= state.global_step:
+            grid.next_eval += cfg.eval_every
+    if state.global_step >= grid.next_checkpoint or finished:
+        learner.checkpoint(asdict(state), memory)
+        grid.next_checkpoint = state.global_step + cfg.checkpoint_every
