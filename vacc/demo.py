@@ -19,6 +19,7 @@ from agent_client.drive import drive_episode
 from agent_client.launcher import local_server
 from agent_client.session import Session
 from energy import evaluate_run
+from protocol.scenarios import TEST_TRAJECTORIES
 
 ROWS = (
     ("gap RMSE to 55 m", "gap_rmse_55m_m", "m"),
@@ -60,7 +61,7 @@ def acc_only(out: Path, trajectory: str) -> None:
 @click.option("--out", default="runs/demo", show_default=True, type=click.Path(file_okay=False), help="Where tables, figures and logs go.")
 @click.option("--models", default="models", show_default=True, type=click.Path(file_okay=False), help="Where ice-gap.pt and ice-force.pt are.")
 @click.option("--acc-only", "acc_only_", is_flag=True, help="Only drive the traditional ACC on --trajectory.")
-@click.option("--trajectory", default="test-1", show_default=True, type=click.Choice(["test-1", "test-2", "test-3", "test-4"]), help="Trajectory of --acc-only.")
+@click.option("--trajectory", default="test-1", show_default=True, type=click.Choice(TEST_TRAJECTORIES), help="Trajectory of --acc-only.")
 @click.pass_context
 def demo(ctx: click.Context, out: str, models: str, acc_only_: bool, trajectory: str) -> None:
     """Evaluate every method on the ICE tests over UDP and print the paper's Table 3."""

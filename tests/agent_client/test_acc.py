@@ -34,8 +34,8 @@ def test_collision_avoidance_limit_engages_only_when_closing_fast():
     acc = AccController()
     calm = {"gap": 50.0, "v_host": 31.0, "v_lead": 30.0, "a_lead": -2.0, "set_speed": 33.5}  # 48 s to reach d_min
     assert acc(calm) == pytest.approx(force_of_accel(0.23 * (50 - 1.8 * 31) + 0.07 * -1.0))
-    urgent = {"gap": 12.0, "v_host": 9.0, "v_lead": 6.0, "a_lead": -1.5, "set_speed": 33.5}  # 3.3 s
-    a_safe = -1.5 - 3.0**2 / (2 * (12.0 - 2.0))
+    urgent = {"gap": 12.0, "v_host": 9.0, "v_lead": 6.0, "a_lead": -1.5, "set_speed": 33.5}  # 3 s to reach d_min
+    a_safe = -1.5 - 3.0**2 / (2 * (12.0 - 3.0))  # aims at d_min = 3 m
     assert acc(urgent) == pytest.approx(force_of_accel(a_safe))
 
 
@@ -78,3 +78,10 @@ def test_stops_d_safe_behind_a_stopped_car(server, seed):
     assert not summary.collision and last[-1]["v_host"] == 0.0
     # It comes to rest at its standstill distance d_safe = 5 m (it stopped 1.9 m short before).
     assert last[-1]["gap"] == pytest.approx(AccController().d_safe, abs=0.5)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_keeps_clear_of_a_much_slower_lead(server, seed):
+    with Session(server) as s:
+        summary = drive_episode(s, AccController(), scenario="ice", seed=seed, trajectory="slow-lead")
+    assert not summary.collision and summary.gap_min >= 2.0  # the safety suite's minimum gap
