@@ -35,6 +35,8 @@ from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import local_server
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
+from protocol.auth import load_key
+from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
 
@@ -129,6 +131,7 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--faults", callback=parse_faults, default=None, help="Inject faults on the client's sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05'.")
 @click.option("--server-faults", default=None, help="Faults for the spawned server's sends (same syntax).")
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
+@click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key of the server (vacc serve --key-file): every datagram carries a MAC.")
 @click.option("--quiet", is_flag=True, help="Print no summary.")
 @click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False, writable=True), help="Also write the forces driven as a human-file (docs/human.md).")
 @click.option("--pad", default="error", show_default=True, type=click.Choice(PADS), help="--controller human-file: past the file's end, fail, hold the last force, or coast at 0.")
@@ -152,6 +155,7 @@ def drive(
     faults: FaultConfig | None,
     server_faults: str | None,
     give_up: float,
+    key_file: str | None,
     quiet: bool,
     record_path: str | None,
     pad: str,
@@ -205,6 +209,13 @@ def drive(
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
+    key = None
+    if key_file is not None:
+        try:
+            key = load_key(key_file)
+        except KeyFileError as exc:
+            raise click.BadParameter(str(exc), param_hint="--key-file") from None
+        server_args += ["--key-file", key_file]
     image_format = "rgb" if live else "none"
     image_size = LIVE_IMAGE
     if controller == "ddqn":  # gray, at the size the checkpoint's preprocessing needs
@@ -214,7 +225,7 @@ def drive(
     try:
         with (
             server_address(server, *server_args) as addr,
-            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=image_size) as session,
+            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=image_size, key=key) as session,
             contextlib.ExitStack() as stack,
         ):
             period = float(session.welcome["control_period"]) if session.welcome else 0.1

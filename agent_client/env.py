@@ -18,6 +18,7 @@ from agent_client.launcher import local_server
 from agent_client.rewards import REWARDS
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
+from protocol.auth import load_key
 from protocol.scenarios import check_initial, check_trajectory
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
@@ -94,6 +95,7 @@ class VisionACCEnv(gym.Env):
         server_args: tuple[str, ...] = (),
         zoom: int = 1,
         set_speed: float | None = None,
+        key_file: str | None = None,
     ):
         check_trajectory(trajectory)
         check_initial(host_speed=None, gap=None, set_speed=set_speed)
@@ -119,9 +121,11 @@ class VisionACCEnv(gym.Env):
             }
         )
         self._stack = contextlib.ExitStack()
-        addr = server if server is not None else self._stack.enter_context(local_server(*server_args))
+        # key_file: the shared key of a remote server (vacc serve --key-file); a spawned one gets it too.
+        key = load_key(key_file) if key_file is not None else None
+        addr = server if server is not None else self._stack.enter_context(local_server(*server_args, key_file=key_file))
         self.session = self._stack.enter_context(
-            Session(addr, image_format="gray", image_size=image_size, give_up=give_up, client_name="vacc-env")
+            Session(addr, image_format="gray", image_size=image_size, give_up=give_up, client_name="vacc-env", key=key)
         )
         self._stacker = FrameStacker(frame_stack, stack_stride)
         self._last_image: np.ndarray | None = None

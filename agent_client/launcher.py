@@ -67,12 +67,17 @@ def reap(proc: subprocess.Popen[str]) -> None:
 
 @contextlib.contextmanager
 def local_server(
-    *args: str, retries: int = 2, timeout: float = START_TIMEOUT, stderr: int | None = None
+    *args: str,
+    retries: int = 2,
+    timeout: float = START_TIMEOUT,
+    stderr: int | None = None,
+    key_file: str | os.PathLike[str] | None = None,
 ) -> Iterator[tuple[str, int]]:
     """Run ``python -m sim_server ARGS`` on 127.0.0.1 for the ``with`` block.
 
     ``stderr`` is where the server's log goes (``subprocess.DEVNULL`` to hide its
-    counters); by default it shares ours.
+    counters); by default it shares ours. ``key_file`` is passed as ``--key-file``:
+    the client's :class:`~agent_client.session.Session` then needs the same key.
 
     Yields:
         The server's (host, port).
@@ -83,7 +88,7 @@ def local_server(
     last: ServerLaunchError | None = None
     for _ in range(retries + 1):
         try:
-            proc, addr = start_server(list(args), timeout, stderr)
+            proc, addr = start_server([*args, *(["--key-file", os.fspath(key_file)] if key_file else [])], timeout, stderr)
             break
         except ServerLaunchError as exc:
             last = exc

@@ -9,6 +9,11 @@ Every request is re-sent after a timeout that doubles up to a cap; the session g
 up after ``give_up`` seconds without the expected reply, naming the server address
 and the last frame. Replies are matched by episode and frame, so stale, duplicated
 or reordered datagrams are ignored.
+
+The socket is connected to the server, so the kernel drops datagrams from anyone
+else; with a shared ``key`` every datagram both ways is sealed and checked
+(:mod:`protocol.auth`), so a forged or replayed reply is dropped and counted in
+``session.endpoint.rejected``.
 """
 
 from __future__ import annotations
@@ -24,9 +29,8 @@ import numpy as np
 
 from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
 from protocol import messages as m
-from protocol.codec import encode
 from protocol.faults import FaultConfig
-from protocol.fragment import DEFAULT_DATAGRAM, fragment
+from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES
 from protocol.transport import Endpoint
 
 __all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
@@ -56,6 +60,7 @@ class Session:
         retry_max: [s] re-send timeout cap.
         faults: fault injection on the client's sends (tests, benchmarks).
         client_name: shown in the server's logs.
+        key: shared key (``protocol.auth.load_key``); the server must hold the same.
     """
 
     def __init__(
@@ -70,6 +75,7 @@ class Session:
         faults: FaultConfig | None = None,
         max_datagram: int = DEFAULT_DATAGRAM,
         client_name: str = "vacc-client",
+        key: bytes | None = None,
     ):
         self.server = resolve(server)
         self.image_format = image_format
@@ -84,7 +90,8 @@ class Session:
         loopback = self.server[0].startswith("127.") or self.server[0] == "::1"
         # Bind loopback for a loopback server, so nothing listens on the network.
         sock.bind((self.server[0] if loopback else "", 0))
-        self.endpoint = Endpoint(sock, max_datagram=max_datagram, faults=faults)
+        sock.connect(self.server)  # the kernel then drops datagrams from anyone else
+        self.endpoint = Endpoint(sock, max_datagram=max_datagram, faults=faults, key=key, peer=self.server)
         self.token: bytes | None = None
         self.welcome: dict[str, Any] | None = None
         self.episode = -1
@@ -130,7 +137,7 @@ class Session:
         busy: SessionError | None = None
         while True:
             try:
-                welcome = self._request(hello, lambda r: r["type"] == "welcome" and r["nonce"] == nonce, "hello", deadline)
+                welcome = self._request(hello, lambda r: r["type"] == "welcome" and r["nonce"] == nonce, "hello", deadline, pad_to=HELLO_BYTES)
                 break
             except ServerTimeout:
                 if busy is None:
@@ -155,11 +162,13 @@ class Session:
         # server's timeout. Its echo (seq 0) is ignored as a stale reply.
         assert self.welcome is not None and self.token is not None
         period = max(0.05, float(self.welcome["session_timeout"]) / 4)
-        datagram = fragment(encode({"type": "heartbeat", "session": self.token, "seq": 0}), 0)[0]
+        datagram = self.endpoint.pack({"type": "heartbeat", "session": self.token, "seq": 0})[0]
         while not self._stop.wait(period):
             if time.monotonic() - self._last_send >= period:
-                try:
-                    self.endpoint.sock.sendto(datagram, self.server)
+                try:  # straight to the socket: fault injection is not thread-safe
+                    self.endpoint.sock.sendto(self.endpoint.seal(datagram), self.server)
+                except ConnectionError:
+                    continue  # an ICMP error from an earlier send; the server may be back
                 except OSError:
                     return  # the socket is closed
 
@@ -291,9 +300,10 @@ class Session:
         what: str,
         deadline: float | None = None,
         error_match: Callable[[dict[str, Any]], bool] = lambda e: True,
+        pad_to: int = 0,
     ) -> dict[str, Any]:
         endpoint, server = self.endpoint, self.server
-        datagrams = endpoint.pack(msg)
+        datagrams = endpoint.pack(msg, pad_to=pad_to)
         endpoint.send_datagrams(datagrams, server)
         now = self._last_send = time.monotonic()
         deadline = deadline if deadline is not None else now + self.give_up
@@ -329,9 +339,10 @@ class Session:
                     raise SessionError(text, reply["code"])
                 continue  # stale or duplicate reply
             if now >= deadline:
+                hint = "; check that both sides use the same --key-file" if endpoint.authenticated and self.token is None else ""
                 raise ServerTimeout(
                     f"no reply from server {self._where()} to {what} (episode {self.episode}, "
-                    f"last frame {self.frame}) within {self.give_up:g} s"
+                    f"last frame {self.frame}) within {self.give_up:g} s{hint}"
                 )
             if now >= resend_at:
                 endpoint.send_datagrams(datagrams, server)

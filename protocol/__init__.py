@@ -3,12 +3,16 @@
 It imports neither side. See ``protocol/SPEC.md`` for the full specification.
 """
 
-from protocol.codec import decode, encode
+from protocol.auth import load_key
+from protocol.codec import decode, encode, scan
 from protocol.errors import (
+    AuthError,
     DecodeError,
     FragmentError,
+    KeyFileError,
     LimitError,
     ProtocolError,
+    ReplayError,
     SchemaError,
     VersionError,
 )
@@ -25,8 +29,13 @@ __all__ = [
     "LimitError",
     "FragmentError",
     "VersionError",
+    "AuthError",
+    "ReplayError",
+    "KeyFileError",
     "encode",
     "decode",
+    "scan",
+    "load_key",
     "make",
     "validate",
     "Reassembler",

@@ -13,6 +13,9 @@ __all__ = [
     "LimitError",
     "FragmentError",
     "VersionError",
+    "AuthError",
+    "ReplayError",
+    "KeyFileError",
 ]
 
 
@@ -38,3 +41,15 @@ class FragmentError(ValueError, ProtocolError):
 
 class VersionError(ValueError, ProtocolError):
     """The peer speaks another protocol version."""
+
+
+class AuthError(ValueError, ProtocolError):
+    """A datagram's MAC is missing, wrong, or present where no key is set."""
+
+
+class ReplayError(AuthError):
+    """An authentic datagram whose sequence number was already seen or is too old."""
+
+
+class KeyFileError(ValueError, ProtocolError):
+    """A shared key file that cannot be read or is too short."""

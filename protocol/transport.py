@@ -1,32 +1,82 @@
-"""Whole messages over one UDP socket: encode, fragment, send; receive, reassemble, decode."""
+"""Whole messages over one UDP socket: encode, fragment, seal, send; receive, open, reassemble, decode.
+
+What a receiver spends on an untrusted datagram is bounded before it spends it: a
+sealed datagram's MAC is checked first (with a key); fragments wait in a
+:class:`~protocol.fragment.Reassembler` bounded per peer and per direction; a
+whole message's structure is scanned (:func:`protocol.codec.scan`) and its object
+count charged to its sender's decode budget before msgpack allocates anything.
+"""
 
 from __future__ import annotations
 
 import socket
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass
 from typing import Any
 
-from protocol.codec import decode, encode
-from protocol.errors import ProtocolError
+from protocol.auth import TRAILER_BYTES, Sealer
+from protocol.codec import MAX_MESSAGE_BYTES, MAX_OBJECTS, decode, encode
+from protocol.errors import AuthError, LimitError, ProtocolError
 from protocol.faults import FaultConfig, FaultySender
-from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, Reassembler, fragment
+from protocol.fragment import (
+    DEFAULT_DATAGRAM,
+    FLAG_MAC,
+    HEADER_BYTES,
+    MAX_DATAGRAM,
+    Reassembler,
+    fragment,
+    pad,
+)
 
-__all__ = ["Endpoint", "Received", "SOCKET_BUFFER_BYTES"]
+__all__ = ["Endpoint", "Received", "DecodeBudget", "SOCKET_BUFFER_BYTES"]
 
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024  # [bytes] room for a few full-size images in flight
+DECODE_RATE = 4 * MAX_OBJECTS  # [objects/s] one peer's decode budget (~60 ms of CPU a second)
+DECODE_BURST = 2 * MAX_OBJECTS  # [objects] its bucket: two of the largest messages at once
+MAX_BUDGET_PEERS = 1024  # peers whose budgets are remembered
 
 Address = Any  # (host, port) as the socket module gives it
 
 
 @dataclass
 class Received:
-    """One received datagram's outcome: a whole message, a rejection, or neither yet."""
+    """One received datagram's outcome: a whole message, a rejection, or neither yet.
+
+    ``size`` is what the sender spent on it [bytes]: the datagram, or for a
+    fragmented message its whole length with a header; a reply to an
+    unauthenticated peer must not be larger.
+    """
 
     addr: Address
     msg: dict[str, Any] | None = None
     error: ProtocolError | None = None
+    size: int = 0
+
+
+class DecodeBudget:
+    """A token bucket of msgpack objects per peer, so one source cannot keep the
+    decoder busy with messages that are each within the limits."""
+
+    def __init__(self, rate: float = DECODE_RATE, burst: float = DECODE_BURST, max_peers: int = MAX_BUDGET_PEERS):
+        self.rate, self.burst, self.max_peers = rate, burst, max_peers
+        self._peers: OrderedDict[Hashable, tuple[float, float]] = OrderedDict()
+
+    def charge(self, peer: Hashable, objects: int, now: float) -> None:
+        """Take ``objects`` from ``peer``'s bucket.
+
+        Raises:
+            LimitError: if the bucket holds fewer (nothing is taken).
+        """
+        tokens, last = self._peers.pop(peer, (self.burst, now))
+        tokens = min(self.burst, tokens + (now - last) * self.rate)
+        if objects > tokens:
+            self._peers[peer] = (tokens, now)
+            raise LimitError(f"peer {peer} is over its decode budget of {self.rate:.0f} objects/s")
+        self._peers[peer] = (tokens - objects, now)
+        if len(self._peers) > self.max_peers:
+            self._peers.popitem(last=False)
 
 
 class Endpoint:
@@ -34,9 +84,13 @@ class Endpoint:
 
     Args:
         sock: a bound (server) or unbound (client) UDP socket; the endpoint owns it.
-        max_datagram: largest datagram sent [bytes].
+        max_datagram: largest datagram sent [bytes], seal included.
         faults: optional fault injection on sends.
         reassembler: where fragments wait; a default bounded one if None.
+        key: shared key: seal every datagram sent, accept only sealed ones.
+        max_message: [bytes] largest whole message accepted (a server takes
+            requests of at most ``codec.MAX_REQUEST_BYTES``).
+        peer: accept datagrams from this address only (a client's server).
     """
 
     def __init__(
@@ -46,6 +100,9 @@ class Endpoint:
         max_datagram: int = DEFAULT_DATAGRAM,
         faults: FaultConfig | None = None,
         reassembler: Reassembler | None = None,
+        key: bytes | None = None,
+        max_message: int = MAX_MESSAGE_BYTES,
+        peer: Address | None = None,
     ):
         self.sock = sock
         for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
@@ -54,22 +111,51 @@ class Endpoint:
             except OSError:
                 pass  # the OS keeps its own cap; a smaller buffer only means more loss
         self.max_datagram = max_datagram
-        self.reassembler = reassembler or Reassembler()
+        self.reassembler = reassembler or Reassembler(max_message=max_message)
+        self.sealer = Sealer(key) if key is not None else None
+        self.peer = peer
+        self.budget = DecodeBudget()
         self._sender = FaultySender(sock, faults) if faults and faults.active else None
         self._msg_id = 0
         self.rejected: Counter[str] = Counter()  # reason -> datagrams dropped
+
+    @property
+    def authenticated(self) -> bool:
+        """True when every datagram is sealed with a shared key."""
+        return self.sealer is not None
 
     def close(self) -> None:
         """Close the socket; safe to call twice."""
         self.sock.close()
 
-    def pack(self, msg: dict[str, Any]) -> list[bytes]:
-        """Encode and fragment a message into datagrams, ready to (re)send."""
+    def pack(self, msg: dict[str, Any], *, pad_to: int = 0) -> list[bytes]:
+        """Encode and fragment a message into datagrams, ready to (re)send.
+
+        The datagrams are sealed (with a key) only when sent, so that every
+        transmission carries a fresh sequence number. ``pad_to`` pads a
+        single-fragment message to that many bytes on the wire.
+        """
         self._msg_id = (self._msg_id + 1) & 0xFFFFFFFF
-        return fragment(encode(msg), self._msg_id, self.max_datagram)
+        if self.sealer is None:
+            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram)
+        else:
+            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=FLAG_MAC, trailer=TRAILER_BYTES)
+        if pad_to and len(datagrams) == 1:
+            datagrams = [pad(datagrams[0], pad_to - (TRAILER_BYTES if self.sealer else 0))]
+        return datagrams
+
+    def wire_size(self, datagrams: list[bytes]) -> int:
+        """Bytes these datagrams take on the wire, seals included."""
+        return sum(len(d) for d in datagrams) + (TRAILER_BYTES * len(datagrams) if self.sealer else 0)
+
+    def seal(self, datagram: bytes) -> bytes:
+        """The datagram as it goes on the wire: sealed with a fresh sequence number (with a key)."""
+        return datagram if self.sealer is None else self.sealer.seal(datagram)
 
     def send_datagrams(self, datagrams: list[bytes], addr: Address) -> None:
-        """Send pre-packed datagrams (a fresh reply or a cached one)."""
+        """Send packed datagrams (a fresh reply or a cached one), sealing each."""
+        if self.sealer is not None:
+            datagrams = [self.sealer.seal(d) for d in datagrams]
         if self._sender is not None:
             for d in datagrams:
                 self._sender.sendto(d, addr)
@@ -92,7 +178,8 @@ class Endpoint:
         Returns:
             None on timeout; else a :class:`Received` with a whole message, a
             rejection (counted in :attr:`rejected` by reason), or neither while a
-            fragmented message is incomplete.
+            fragmented message is incomplete or the datagram came from a foreign
+            address.
         """
         sender = self._sender
         if sender is not None:
@@ -110,11 +197,22 @@ class Endpoint:
         except ConnectionError:
             # Linux reports an ICMP port-unreachable from an earlier send here.
             return Received(addr=None)
+        if self.peer is not None and addr[:2] != self.peer[:2]:  # IPv6 adds flow info and scope
+            self.rejected["foreign_peer"] += 1
+            return Received(addr=None)
+        size = len(datagram)
         try:
-            payload = self.reassembler.feed(datagram, addr, time.monotonic())
+            if self.sealer is not None:
+                datagram = self.sealer.open(datagram, addr)
+            elif len(datagram) > 3 and datagram[3] & FLAG_MAC:
+                raise AuthError("datagram carries a MAC but this side has no key")
+            now = time.monotonic()
+            payload = self.reassembler.feed(datagram, addr, now)
             if payload is None:
-                return Received(addr)
-            return Received(addr, msg=decode(payload))
+                return Received(addr, size=size)
+            size = max(size, len(payload) + HEADER_BYTES)
+            msg = decode(payload, check=lambda objects: self.budget.charge(addr, objects, now))
+            return Received(addr, msg=msg, size=size)
         except ProtocolError as exc:
             self.rejected[type(exc).__name__] += 1
-            return Received(addr, error=exc)
+            return Received(addr, error=exc, size=size)

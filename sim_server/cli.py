@@ -7,6 +7,8 @@ import sys
 
 import click
 
+from protocol.auth import load_key
+from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from sim_server.server import LOOPBACK_HOSTS, ServerConfig, SimServer
@@ -31,7 +33,8 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
 @click.option("--session-timeout", default=10.0, show_default=True, type=click.FloatRange(0.1, 3600), help="Seconds of silence before a client's session is freed.")
 @click.option("--faults", callback=_faults, default=None, help="Inject faults on sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05,seed=1'.")
 @click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")
-@click.option("--allow-remote", is_flag=True, help="Allow binding an address other than loopback.")
+@click.option("--allow-remote", is_flag=True, help="Allow binding an address other than loopback (needs --key-file).")
+@click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key: every datagram both ways carries a MAC; clients need the same file.")
 @click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
 @click.option("--parent-pid", default=None, type=int, help="Exit when this process dies (set by launchers).")
 def serve(
@@ -44,6 +47,7 @@ def serve(
     faults: FaultConfig | None,
     max_datagram: int,
     allow_remote: bool,
+    key_file: str | None,
     max_seconds: float | None,
     parent_pid: int | None,
 ) -> None:
@@ -52,10 +56,18 @@ def serve(
     Prints 'vacc-server listening on HOST:PORT' once bound, then serves until
     interrupted. Counters of served and rejected datagrams are printed at exit.
     """
+    key = None
+    if key_file is not None:
+        try:
+            key = load_key(key_file)
+        except KeyFileError as exc:
+            raise click.BadParameter(str(exc), param_hint="--key-file") from None
     if host not in LOOPBACK_HOSTS and not host.startswith("127."):
         if not allow_remote:
             raise click.UsageError(f"--host {host} is not a loopback address; pass --allow-remote to bind it")
-        click.echo(f"warning: binding {host}: the simulator is reachable from the network", err=True)
+        if key is None:
+            raise click.UsageError("--allow-remote needs --key-file: a reachable simulator must authenticate its clients")
+        click.echo(f"warning: binding {host}: the simulator is reachable from the network (datagrams authenticated)", err=True)
     config = ServerConfig(
         host=host,
         port=port,
@@ -66,6 +78,7 @@ def serve(
         faults=faults,
         max_datagram=max_datagram,
         parent_pid=parent_pid,
+        key=key,
     )
     try:
         server = SimServer(config)

@@ -4,6 +4,11 @@ The server owns time. It advances exactly one control period per ``step`` it
 receives and answers with the observation of the new frame. A repeated request
 (the client re-sends after a timeout) is answered from a cache, never simulated
 twice, so lost, duplicated or reordered datagrams cannot change a run.
+
+With a shared key (``--key-file``) every datagram is sealed with a MAC and checked
+against a replay window before it is even reassembled (:mod:`protocol.auth`);
+datagrams that fail are counted and never answered. Without a key, a datagram
+outside the current session is never answered with more bytes than it carried.
 """
 
 from __future__ import annotations
@@ -20,9 +25,10 @@ from typing import Any
 import numpy as np
 
 from protocol import messages as m
+from protocol.codec import MAX_REQUEST_BYTES
 from protocol.errors import ProtocolError, VersionError
 from protocol.faults import FaultConfig
-from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
+from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.messages import ErrorCode
 from protocol.transport import Endpoint
 from sim_server.errors import SimError
@@ -46,6 +52,7 @@ class ServerConfig:
     faults: FaultConfig | None = None  # inject faults on the server's sends
     max_datagram: int = DEFAULT_DATAGRAM  # [bytes] cap on what the server sends
     parent_pid: int | None = None  # exit when this process is no longer our parent
+    key: bytes | None = field(default=None, repr=False)  # shared key: seal and check every datagram
 
 
 @dataclass
@@ -73,7 +80,7 @@ class SimServer:
         self.config = config
         sock = socket.socket(socket.AF_INET6 if ":" in config.host else socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind((config.host, config.port))
-        self.endpoint = Endpoint(sock, max_datagram=config.max_datagram, faults=config.faults)
+        self.endpoint = Endpoint(sock, max_datagram=config.max_datagram, faults=config.faults, key=config.key, max_message=MAX_REQUEST_BYTES)
         self.address = sock.getsockname()[:2]
         self.world = World(config.world, salt=config.seed)
         self.session: _Session | None = None
@@ -116,32 +123,55 @@ class SimServer:
             if got is None or got.addr is None:
                 continue
             if got.error is not None:
-                self._reject(got.error, got.addr)
+                self._reject(got.error, got.addr, got.size)
             elif got.msg is not None:
                 self.stats[f"rx.{got.msg['type']}"] += 1
+                limit = self._reply_limit(got.msg, got.addr, got.size)
                 try:
-                    self._dispatch(got.msg, got.addr)
+                    self._dispatch(got.msg, got.addr, limit)
                 except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
                     self.stats["internal_errors"] += 1
                     print(f"vacc-server: internal error on {got.msg['type']}: {exc!r}", file=sys.stderr)
-                    self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc))
+                    self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc), limit=limit)
 
     # -- requests -------------------------------------------------------------
 
-    def _reject(self, exc: ProtocolError, addr: Any) -> None:
+    def _reply_limit(self, msg: dict[str, Any], addr: Any, size: int) -> int | None:
+        """The most bytes a reply to this message may take: unbounded for an
+        authenticated datagram or the session's own requests, else the request's
+        size, so a spoofed source gains no amplification."""
+        s = self.session
+        if self.endpoint.authenticated or (s is not None and addr == s.addr and msg.get("session") == s.token):
+            return None
+        return size
+
+    def _reject(self, exc: ProtocolError, addr: Any, size: int) -> None:
         self.stats["rejected"] += 1
         if isinstance(exc, VersionError):
             # The one bad datagram worth answering: the peer can fix its version.
-            self._send_error(addr, ErrorCode.BAD_VERSION, str(exc))
+            # (With a key, only a sealed datagram gets this far.)
+            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}", limit=None if self.endpoint.authenticated else size)
 
-    def _send_error(self, addr: Any, code: ErrorCode, detail: str, **where: int | None) -> None:
-        self.stats[f"tx.error.{code.name}"] += 1
-        self.endpoint.send(m.error(code, detail, **where), addr)
+    def _send(self, msg: dict[str, Any], addr: Any, limit: int | None) -> list[bytes]:
+        """Send a reply no larger than ``limit`` bytes on the wire (else withhold it)."""
+        datagrams = self.endpoint.pack(msg)
+        if limit is not None and self.endpoint.wire_size(datagrams) > limit:
+            self.stats["tx.withheld_larger_than_request"] += 1
+            return []
+        self.endpoint.send_datagrams(datagrams, addr)
+        return datagrams
 
-    def _dispatch(self, msg: dict[str, Any], addr: Any) -> None:
+    def _send_error(self, addr: Any, code: ErrorCode, detail: str, *, limit: int | None = None, **where: int | None) -> None:
+        msg = m.error(code, detail, **where)
+        if limit is not None and self.endpoint.wire_size(self.endpoint.pack(msg)) > limit:
+            msg = m.error(code, "", **where)  # the code alone may still fit
+        if self._send(msg, addr, limit):
+            self.stats[f"tx.error.{code.name}"] += 1
+
+    def _dispatch(self, msg: dict[str, Any], addr: Any, limit: int | None) -> None:
         kind = msg["type"]
         if kind == "hello":
-            self._hello(msg, addr)
+            self._hello(msg, addr, limit)
             return
         if kind in ("welcome", "obs", "error"):
             self.stats["rejected.wrong_direction"] += 1
@@ -149,10 +179,10 @@ class SimServer:
         session = self.session
         if session is None or msg["session"] != session.token:
             if kind == "close":
-                self.endpoint.send({"type": "close", "session": msg["session"]}, addr)
+                self._send({"type": "close", "session": msg["session"]}, addr, limit)
             else:
                 self.stats["rejected.no_session"] += 1
-                self._send_error(addr, ErrorCode.NO_SESSION, "unknown or expired session token")
+                self._send_error(addr, ErrorCode.NO_SESSION, "unknown or expired session token", limit=limit)
             return
         if addr != session.addr:
             # A valid token from another address is a hijack attempt: not served.
@@ -170,16 +200,18 @@ class SimServer:
             self.session = None
             self.stats["sessions_closed"] += 1
 
-    def _hello(self, msg: dict[str, Any], addr: Any) -> None:
+    def _hello(self, msg: dict[str, Any], addr: Any, limit: int | None) -> None:
         session = self.session
         if session is not None and session.addr == addr and session.nonce == msg["nonce"]:
-            self.endpoint.send_datagrams(session.welcome, addr)  # a repeated hello
+            if limit is None or self.endpoint.wire_size(session.welcome) <= limit:
+                self.endpoint.send_datagrams(session.welcome, addr)  # a repeated hello
             return
         if msg["version"] != m.PROTOCOL_VERSION:
-            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}, hello says {msg['version']}")
+            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}, hello says {msg['version']}", limit=limit)
             return
         if session is not None:
-            self._send_error(addr, ErrorCode.BUSY, f"the world is in use by {session.addr}; retry later")
+            # Who holds the world is nobody else's business.
+            self._send_error(addr, ErrorCode.BUSY, "the world is in use by another session; retry later", limit=limit)
             return
         fmt, width, height = msg["image_format"], msg["image_width"], msg["image_height"]
         problem = None
@@ -192,7 +224,7 @@ class SimServer:
         elif len(msg["nonce"]) != m.NONCE_BYTES:
             problem = f"nonce must be {m.NONCE_BYTES} bytes"
         if problem:
-            self._send_error(addr, ErrorCode.BAD_MESSAGE, problem)
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, problem, limit=limit)
             return
         token = os.urandom(m.TOKEN_BYTES)  # a capability, not simulation randomness
         max_datagram = min(msg["max_datagram"], self.config.max_datagram)
@@ -213,6 +245,9 @@ class SimServer:
         }
         self.endpoint.max_datagram = max_datagram
         datagrams = self.endpoint.pack(welcome)
+        if limit is not None and self.endpoint.wire_size(datagrams) > limit:
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, f"pad the hello to {HELLO_BYTES} bytes", limit=limit)
+            return
         self.session = _Session(token, addr, msg["nonce"], datagrams, fmt, (width, height), time.monotonic())
         self.stats["sessions_opened"] += 1
         self.endpoint.send_datagrams(datagrams, addr)

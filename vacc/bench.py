@@ -7,6 +7,7 @@ measured moments before (a raw UDP echo for the lockstep round trip).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -92,6 +93,35 @@ def lockstep(steps: int, reps: int, image_format: str = "none", size: tuple[int,
                 rates.append(steps / (time.perf_counter() - t0))
         nbytes = len(obs["image"]) if obs["image"] is not None else 0
     return {"steps_per_s": _reps(rates), "rtt_us": {k: v * 1e6 for k, v in _summary(rtts[steps:]).items()}, "image_bytes": nbytes}
+
+
+def lockstep_key(steps: int, reps: int) -> dict[str, Any]:
+    """Cost of a shared key (a MAC and a replay check on every datagram): lockstep
+    steps/s with and without ``--key-file``, repetitions interleaved in one run."""
+    import tempfile
+
+    from protocol.auth import load_key
+
+    rates: dict[str, list[float]] = {"plain": [], "keyed": []}
+    with tempfile.TemporaryDirectory() as tmp, contextlib.ExitStack() as stack:
+        key_file = Path(tmp) / "bench.key"
+        key_file.write_bytes(os.urandom(32).hex().encode())
+        sessions = {
+            "plain": stack.enter_context(Session(stack.enter_context(local_server()))),
+            "keyed": stack.enter_context(Session(stack.enter_context(local_server(key_file=key_file)), key=load_key(key_file))),
+        }
+        for rep in range(reps + 1):
+            for name, s in sessions.items():
+                s.reset(seed=rep, trajectory="random")
+                t0 = time.perf_counter()
+                for _ in range(steps):
+                    obs = s.step(0.0)
+                    if obs["truncated"] or obs["terminated"]:
+                        s.reset(seed=rep + 100, trajectory="random")
+                if rep:  # the first repetition is the warm-up
+                    rates[name].append(steps / (time.perf_counter() - t0))
+    plain, keyed = statistics.median(rates["plain"]), statistics.median(rates["keyed"])
+    return {"plain": _reps(rates["plain"]), "keyed": _reps(rates["keyed"]), "ratio": keyed / plain}
 
 
 def _env_rate(env: Any, action: int, steps: int, reps: int) -> dict[str, Any]:
@@ -278,6 +308,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         rows["lockstep_rgb400"] = lockstep(max(50, steps // 10), reps, "rgb", (400, 400))
         bar.update(1)
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
+        rows["lockstep_key"] = lockstep_key(steps, reps)
         bar.update(1)
         rows["render_rgb400"] = render_time(500 if quick else 2000)
         rows["render_gray200"] = render_time(500 if quick else 2000, (200, 200), gray=True)
@@ -343,6 +374,9 @@ def format_table(result: dict[str, Any]) -> str:
     rate("lockstep_no_image", "lockstep, no image", f">= 5000/s ({f['lockstep_no_image']['pct_of_echo']:.0f}% of echo)")
     rate("lockstep_rgb400", "lockstep, 400x400 RGB (480 KB)", "")
     rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
+    k = f["lockstep_key"]
+    cost = 1e6 * (1 / k["keyed"]["median"] - 1 / k["plain"]["median"])  # [us] per step
+    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step")
     r = f["agent_env"]["steps_per_s"]
     ratio = f["agent_env"].get("x_highway_env")
     lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))
