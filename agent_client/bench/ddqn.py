@@ -2,7 +2,10 @@
 
 * decision latency: a received 200x200 gray frame to the chosen action
   (preprocessing, stacking, forward pass at batch 1, one CPU thread);
-* training steps/s against a real simulator server over UDP, learning on;
+* training steps/s against a real simulator server over UDP, learning on, for the
+  parallel (two-core) and the serial schedule;
+* sampling a batch of 32 with 5-step returns from a full 100k replay memory;
+* one batch-32 gradient step on one thread;
 * replay memory bytes per transition.
 
     python -m agent_client.bench.ddqn [--quick]
@@ -48,18 +51,70 @@ def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str,
         torch.set_num_threads(threads)
 
 
-def training_rate(steps: int = 2000, learning_starts: int = 500) -> dict[str, float]:
+def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = "parallel") -> dict[str, float]:
     """Training steps/s (act + env step over UDP + a gradient step every 8) with a real server."""
     cfg = Config(
         total_steps=steps, learning_starts=learning_starts, train_every=8, buffer_size=max(steps, 1000),
-        eval_trajectories=(), checkpoint_every=10**9, episode_seconds=60.0,
+        eval_trajectories=(), checkpoint_every=10**9, episode_seconds=60.0, schedule=schedule,
     )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         summary = train(cfg, tmp, progress=False)
         wall = time.perf_counter() - t0
     learning = steps - learning_starts
-    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "learning_steps": learning, "train_every": 8, "summary_wall_s": summary["wall_s"]}
+    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "learning_steps": learning, "train_every": 8,
+            "summary_wall_s": summary["wall_s"], "schedule": schedule}  # fmt: skip
+
+
+def _filled_memory(capacity: int, rng: np.random.Generator) -> ReplayMemory:
+    """A full memory of 60 s episodes with random frames (every page touched)."""
+    memory = ReplayMemory(capacity, 8, 2)
+    frames = rng.integers(0, 256, (64, FRAME_H, FRAME_W), dtype=np.uint8)
+    obs = lambda i: {"frames": frames[i % 64][None], "speeds": np.array([25.0], np.float32)}  # noqa: E731
+    memory.start(obs(0))
+    for i in range(1, capacity + 1):
+        end = i % 600 == 0
+        memory.add(i % 21, 0.1, False, end, obs(i))
+        if end:
+            memory.start(obs(i))
+    return memory
+
+
+def sample_latency(capacity: int = 100_000, repeats: int = 300) -> dict[str, float]:
+    """Median and p90 [s] of sampling a batch of 32 with 5-step returns from a full memory."""
+    rng = np.random.default_rng(0)
+    memory = _filled_memory(capacity, rng)
+    times = []
+    for i in range(repeats + 20):
+        t0 = time.perf_counter()
+        memory.sample(32, rng, 5, 0.99)
+        if i >= 20:
+            times.append(time.perf_counter() - t0)
+    return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90)), "capacity": capacity}
+
+
+def update_cost(repeats: int = 30) -> dict[str, float]:
+    """Median [s] of thread CPU time (not wall: the machine is shared) of one batch-32
+    gradient step with 5-step returns, one torch thread, through :meth:`Learner.update`."""
+    from agent_client.rl.learner import Learner
+
+    rng = np.random.default_rng(0)
+    memory = _filled_memory(5_000, rng)
+    threads = torch.get_num_threads()
+    times = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            learner = Learner(Config(cuda=False, n_step=5), tmp)
+            for i in range(repeats + 3):
+                b = memory.sample(32, rng, 5, 0.99)
+                t0 = time.thread_time()
+                learner.update(b)
+                if i >= 3:
+                    times.append(time.thread_time() - t0)
+            learner.close()
+    finally:
+        torch.set_num_threads(threads)
+    return {"median_s": float(np.median(times))}
 
 
 def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:
@@ -69,11 +124,15 @@ def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:
 
 
 def run(quick: bool = False) -> dict[str, Any]:
-    """All three figures."""
+    """Every figure."""
+    steps, starts = (600, 100) if quick else (3000, 1000)
     return {
         "decision_latency": decision_latency(repeats=100 if quick else 500),
+        "sample_latency": sample_latency(capacity=20_000 if quick else 100_000),
+        "update_cost": update_cost(repeats=10 if quick else 30),
         "replay": replay_bytes_per_transition(),
-        "training": training_rate(steps=600 if quick else 3000, learning_starts=100 if quick else 1000),
+        "training_parallel": training_rate(steps, starts),
+        "training_serial": training_rate(steps, starts, schedule="serial"),
     }
 
 

@@ -33,7 +33,7 @@ import torch.nn as nn
 
 from agent_client.errors import ClientError, InputFileError
 from agent_client.rl.config import Config, config_dict, config_from
-from agent_client.rl.network import N_ACTIONS, QNetwork
+from agent_client.rl.network import QNetwork
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -148,7 +148,7 @@ def checkpoint_config(ckpt: dict[str, Any], path: str | Path) -> Config:
     Raises:
         InputFileError: a setting out of range.
     """
-    return config_from(ckpt["config"], path, legacy=ckpt.get("version") == 1)
+    return config_from(ckpt["config"], path)
 
 
 def load_weights(module: nn.Module, state: dict[str, Any], path: str | Path, what: str = "model") -> None:
@@ -192,7 +192,7 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[Q
     """
     ckpt = read_checkpoint(path)
     cfg = checkpoint_config(ckpt, path)
-    q = QNetwork(cfg.frame_stack, N_ACTIONS, cfg.speed_scale)
+    q = QNetwork.of(cfg)
     load_weights(q, ckpt["model"], path)
     return q.to(device).eval(), cfg
 

@@ -23,6 +23,9 @@ SCHEDULES = ("parallel", "serial")
 # other values stays bit-identical to one that never stopped.
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
+# What a run saved before a setting existed did: it trained and evaluated that way.
+LEGACY_VALUES = {"schedule": "serial"}
+
 
 class ConfigError(ValueError):
     """A setting out of range; ``field`` names it (the CLI maps it to its option)."""
@@ -159,13 +162,12 @@ def config_dict(cfg: Config) -> dict[str, Any]:
     return d
 
 
-def config_from(d: dict[str, Any], path: Any, *, legacy: bool = False) -> Config:
+def config_from(d: dict[str, Any], path: Any) -> Config:
     """A :class:`Config` from :func:`config_dict`'s output; unknown keys are ignored.
 
     Args:
         d: the dict.
         path: where it came from, for the error.
-        legacy: a version-1 checkpoint, written before ``schedule`` existed (serial).
 
     Raises:
         InputFileError: a setting out of range.
@@ -174,8 +176,8 @@ def config_from(d: dict[str, Any], path: Any, *, legacy: bool = False) -> Config
     known = {k: v for k, v in d.items() if k in names}
     if "eval_trajectories" in known:
         known["eval_trajectories"] = tuple(known["eval_trajectories"])
-    if legacy:
-        known.setdefault("schedule", "serial")
+    for name, value in LEGACY_VALUES.items():  # a config saved before the setting existed
+        known.setdefault(name, value)
     try:
         return Config(**known)
     except (TypeError, ValueError) as exc:

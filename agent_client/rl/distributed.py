@@ -188,7 +188,7 @@ class StreamActor:
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,
             server_args=("--session-timeout", str(SESSION_TIMEOUT), *server_args),
         )  # fmt: skip
-        self.q = QNetwork(cfg.frame_stack, N_ACTIONS, cfg.speed_scale).eval()
+        self.q = QNetwork.of(cfg).eval()
         self.version = -1
         self.episode = episode_base
         self._obs: dict[str, np.ndarray] | None = None

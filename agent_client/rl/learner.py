@@ -37,13 +37,38 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action
+from agent_client.rl.network import QNetwork, greedy_action
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 
 __all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT"]
 
 SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
+MALLOC_KEEP = 1 << 30  # [B] freed memory glibc keeps for reuse instead of returning it to the OS
+
+
+def keep_freed_memory() -> None:
+    """Let glibc reuse freed blocks instead of mapping fresh pages for every tensor.
+
+    An update allocates and frees tens of 4-16 MB temporaries (the float frames, the
+    activations, the gradients). By default glibc maps each from the OS and unmaps it
+    when freed, so every update pays its page faults again: about a third of its time
+    on one core. Raising the mmap and trim thresholds keeps the blocks in the heap. The
+    numbers computed are the same; only where the memory comes from changes.
+    """
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return
+    try:
+        libc = ctypes.CDLL(name)
+        M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's <malloc.h>
+        libc.mallopt(M_MMAP_THRESHOLD, 256 << 20)  # blocks below 256 MB come from the heap
+        libc.mallopt(M_TRIM_THRESHOLD, MALLOC_KEEP)
+    except (OSError, AttributeError):  # not glibc: keep its defaults
+        pass
 
 
 def double_dqn_target(
@@ -113,6 +138,8 @@ class Learner:
         self.server_args = ("--session-timeout", str(SESSION_TIMEOUT), *server_args)
         self.parallel = cfg.schedule == "parallel" and trainer == "single"
 
+        keep_freed_memory()
+
         # --- seeding: the one block. Everything random draws from these. -----------
         random.seed(cfg.seed)
         torch.manual_seed(cfg.seed)
@@ -151,7 +178,7 @@ class Learner:
         self._eval_env: Any = None
 
     def _network(self) -> QNetwork:
-        return QNetwork(self.cfg.frame_stack, N_ACTIONS, self.cfg.speed_scale).to(self.device)
+        return QNetwork.of(self.cfg).to(self.device)
 
     # ------------------------------------------------------------------ start
 

@@ -6,6 +6,8 @@ goes through :func:`greedy_action`, so they compute the same numbers to the last
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 import torch.nn as nn
@@ -47,6 +49,11 @@ class QNetwork(nn.Module):
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1]
         self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack, 256), nn.ReLU(), nn.Linear(256, n_actions))
+
+    @classmethod
+    def of(cls, cfg: Any) -> QNetwork:
+        """The network a :class:`~agent_client.rl.config.Config` describes."""
+        return cls(cfg.frame_stack, N_ACTIONS, cfg.speed_scale)
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor) -> torch.Tensor:
         """Q-values.
