@@ -19,6 +19,7 @@ counted and never answered.
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 import itertools
 import struct
@@ -121,12 +122,14 @@ class Sealer:
     def __init__(self, key: bytes, window: ReplayWindow | None = None):
         if len(key) < MIN_KEY_BYTES:
             raise KeyFileError(f"key of {len(key)} bytes, need at least {MIN_KEY_BYTES}")
-        self._key = key
+        self._keyed = hmac.new(key, digestmod=hashlib.sha256)  # copied per datagram: the key is set up once
         self._seq = itertools.count(time.time_ns())  # next() is atomic: safe from two threads
         self.window = window or ReplayWindow()
 
     def _tag(self, data: bytes | memoryview) -> bytes:
-        return hmac.digest(self._key, data, "sha256")[:TAG_BYTES]
+        mac = self._keyed.copy()
+        mac.update(data)
+        return mac.digest()[:TAG_BYTES]
 
     def seal(self, datagram: bytes) -> bytes:
         """Append a fresh sequence number and the MAC (the header must carry FLAG_MAC)."""

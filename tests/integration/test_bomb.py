@@ -35,15 +35,22 @@ def rss_bytes(pid: int) -> int:
     raise RuntimeError("no VmRSS")
 
 
+def wide_bomb(size: int) -> bytes:
+    """The issue's bomb: a map of 32 arrays of empty arrays, one object per byte, ``size`` bytes at most."""
+    per = (size - 3) // 32 - 7
+    return b"\xde\x00\x20" + b"".join(bytes([0xA1, 0x41 + k, 0xDD]) + per.to_bytes(4, "big") + b"\x90" * per for k in range(32))
+
+
 def bomb_messages() -> list[bytes]:
     """Hostile messages within the datagram rules, each a different way to make a decoder allocate."""
     n = codec.MAX_ARRAY_LEN
-    nested = b"\x81\xa4type\xdd" + n.to_bytes(4, "big") + b"\x90" * n  # 131 072 empty arrays
-    deep = b"\x81\xa4type" + b"\x91" * (codec.MAX_REQUEST_BYTES - 8) + b"\x00"  # 2.3 M levels deep
-    ints = b"\x81\xa4type\xdd" + n.to_bytes(4, "big") + b"\xcd\x01\x01" * n  # 131 072 int objects
-    floats = codec.encode({"type": "x", "a": [0.5] * n, "b": [0.25] * n})  # legal shape, heaviest decode
-    issue = b"\x81\xa4type\xdd" + n.to_bytes(4, "big") + b"\x90" * n + b"\x90" * (codec.MAX_MESSAGE_BYTES - n - 12)  # 4 MiB
-    return [nested, deep, ints, floats, issue]
+    return [
+        wide_bomb(codec.MAX_MESSAGE_BYTES),  # 4.2 M objects: 3.5-4.8 s and 256 MB each before
+        wide_bomb(codec.MAX_REQUEST_BYTES),  # as large as a client message may be
+        b"\x81\xa4type" + b"\x91" * (codec.MAX_REQUEST_BYTES - 8) + b"\x00",  # 2.4 M levels deep
+        b"\x81\xa4type\xdd" + n.to_bytes(4, "big") + b"\xcd\x01\x01" * n,  # 131 072 int objects
+        codec.encode({"type": "x", "a": [0.5] * n, "b": [0.25] * n}),  # legal shape, heaviest decode
+    ]
 
 
 def flood(targets: list[tuple[str, int]], seconds: float, rate: int, stop: threading.Event, sent: list[int]) -> None:
