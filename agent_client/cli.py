@@ -198,7 +198,7 @@ def drive(
     elif controller == "ddqn":
         if checkpoint is None:
             raise click.UsageError("--controller ddqn needs --checkpoint PATH")
-        from agent_client.ddqn import DDQNController  # torch is imported only for ddqn
+        from agent_client.controllers.ddqn import DDQNController  # torch is imported only for ddqn
 
         try:
             policy = DDQNController.from_checkpoint(checkpoint)

@@ -13,10 +13,10 @@ import numpy as np
 
 from agent_client.runlog import RunLog
 from agent_client.session import Session
+from protocol.constants import DESIRED_GAP
 
 __all__ = ["DriveSummary", "drive_episode", "DESIRED_GAP", "StopEpisode"]
 
-DESIRED_GAP = 55.0  # [m] the paper's gap target for RMSE
 
 
 class StopEpisode(Exception):

@@ -19,13 +19,12 @@ from agent_client.rewards import REWARDS
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
+from protocol.constants import FORCES, N_ACTIONS
 from protocol.scenarios import check_initial, check_trajectory
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
 
-N_ACTIONS = 21
 RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed"})
-FORCES = np.round(np.linspace(-1.0, 1.0, N_ACTIONS), 1)  # u of each action: -1.0, -0.9, ..., 1.0
 
 
 class VisionACCEnv(gym.Env):

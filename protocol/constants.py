@@ -7,11 +7,14 @@ imports these from here (``protocol/`` imports neither side).
 
 from __future__ import annotations
 
+import numpy as np
+
 __all__ = [
     "A_MIN",
     "A_MAX",
     "N_ACTIONS",
     "FORCE_LEVELS",
+    "FORCES",
     "DESIRED_GAP",
     "CAMERA_SIZE",
 ]
@@ -21,5 +24,7 @@ A_MAX = 3.5  # [m/s^2] acceleration at u = +1 (full throttle)
 N_ACTIONS = 21  # discrete force levels of the paper's DDQN
 # u of action a: -1 + 0.1 a, rounded so that 0.0 and 1.0 are exact.
 FORCE_LEVELS: tuple[float, ...] = tuple(round(-1.0 + 2.0 * a / (N_ACTIONS - 1), 1) for a in range(N_ACTIONS))
+FORCES = np.asarray(FORCE_LEVELS)  # the same levels as an array: FORCES[a] is action a's u
+FORCES.setflags(write=False)
 DESIRED_GAP = 55.0  # [m] the paper's desired gap: the gap reward's peak and the RMSE target
 CAMERA_SIZE = (400, 400)  # [px] (width, height) of the full front camera

@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from protocol.constants import A_MIN
+
 __all__ = [
     "SCENARIOS",
     "TEST_TRAJECTORIES",
@@ -59,7 +61,7 @@ TRACE_SPEED_MAX = 70.0  # [m/s] 252 km/h
 TRACE_ACCEL_LIMIT = 9.81  # [m/s^2] 1 g either way: beyond tyre grip of a road car
 
 # What "stopping is physically possible" means for the scenarios below.
-BRAKE_LIMIT = 5.5  # [m/s^2] the host's full-brake deceleration (u = -1)
+BRAKE_LIMIT = -A_MIN  # [m/s^2] the host's full-brake deceleration (u = -1)
 REACTION_TIME = 0.1  # [s] one control period before the first brake command acts
 STOP_MARGIN = 2.0  # [m] gap left at standstill (the safety suite's minimum gap)
 

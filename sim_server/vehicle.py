@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import math
 
+from protocol.constants import A_MAX, A_MIN
+
 __all__ = ["A_MIN", "A_MAX", "accel_of_force", "advance_speed"]
 
-A_MIN = -5.5  # [m/s^2] at u = -1 (full brake), paper Sec. 4
-A_MAX = 3.5  # [m/s^2] at u = +1 (full throttle)
 
 
 def accel_of_force(u: float) -> float:

@@ -318,7 +318,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["highway_env_peer"] = highway_peer(max(50, steps // 20), reps)
         bar.update(1)
-        from agent_client import ddqn_bench
+        from agent_client.bench import ddqn as ddqn_bench
         from vacc import bench_sb3
 
         lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)

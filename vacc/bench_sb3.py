@@ -38,8 +38,12 @@ def _extractor_class() -> Any:
     return VaccExtractor
 
 
-def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8) -> dict[str, Any]:
-    """SB3 DQN (MultiInputPolicy, our net size) training steps/s against a real server."""
+def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8, threads: int = 2) -> dict[str, Any]:
+    """SB3 DQN (MultiInputPolicy, our net size) training steps/s against a real server.
+
+    Run it in a process of its own (:func:`sb3_training_rate_isolated`): vacc's learner
+    tunes the process's allocator, which would speed SB3 up too.
+    """
     try:
         import torch
         from stable_baselines3 import DQN
@@ -47,7 +51,7 @@ def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8) ->
         return {"error": INSTALL_HINT}
     from agent_client.env import VisionACCEnv
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(threads)  # as many as vacc's learner uses
     env = VisionACCEnv(trajectory="random", stack_stride=2, episode_seconds=60.0)
     try:
         model = DQN(
@@ -61,7 +65,20 @@ def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8) ->
         wall = time.perf_counter() - t0
     finally:
         env.close()
-    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "train_every": train_every}
+    return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "train_every": train_every, "threads": threads}
+
+
+def sb3_training_rate_isolated(steps: int, learning_starts: int, train_every: int = 8, threads: int = 2) -> dict[str, Any]:
+    """:func:`sb3_training_rate` in a fresh Python process, as a user would run SB3."""
+    import json
+    import subprocess
+    import sys
+
+    code = f"import json; from vacc.bench_sb3 import sb3_training_rate; print(json.dumps(sb3_training_rate({steps}, {learning_starts}, {train_every}, {threads})))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=3600)
+    if proc.returncode != 0:
+        return {"error": (proc.stderr.strip().splitlines() or ["SB3 peer failed"])[-1]}
+    return dict(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
 def sb3_replay_bytes(capacity: int = 1000) -> dict[str, Any]:

@@ -26,9 +26,10 @@ import numpy as np
 
 from energy import SETTLE_S, evaluate_run
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
+from protocol.scenarios import TEST_TRAJECTORIES
 from vacc.metrics_cmd import finite_non_negative
 
-TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4")
+TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
 METHODS = ("lead", "ddqn-gap", "ddqn-force", "acc", "human")
 LABELS = {
     "lead": "Lead vehicle",
@@ -119,50 +120,36 @@ class Job:
 
 
 def _controller(job: Job) -> Any:
-    if job.method == "acc":
-        from agent_client.controllers.acc import AccController
+    from agent_client.controllers import make_controller
 
-        return AccController(), "none"
     if job.method in ("human", "lead"):
-        if job.human_file:
-            from agent_client.controllers.human_file import HumanFileController, read_human_file
+        if not job.human_file:
+            return make_controller("hdm", seed=job.seed)
+        from agent_client.controllers.human_file import read_human_file
 
-            replay = read_human_file(job.human_file)
-            replay.check(scenario=job.scenario, trajectory=job.trajectory, seed=job.seed)
-            return HumanFileController(replay, "hold"), "none"
-        from agent_client.controllers.hdm import HumanDriverModel
-
-        return HumanDriverModel(seed=job.seed), "none"
-    from agent_client.controllers.ddqn import DDQNController
-
-    assert job.checkpoint is not None  # evaluate() gives every ddqn job its checkpoint
-    return DDQNController.from_checkpoint(job.checkpoint), "gray"
-
-
-def _image_size(controller: Any) -> tuple[int, int]:
-    """The camera a controller needs: a DDQN checkpoint's zoom decides it."""
-    cfg = getattr(controller, "cfg", None)
-    if cfg is None:
-        return (200, 200)  # unused: image_format "none"
-    from agent_client.preprocess import camera_size
-
-    return camera_size(cfg.zoom)
+        replay = read_human_file(job.human_file)
+        replay.check(scenario=job.scenario, trajectory=job.trajectory, seed=job.seed)
+        return make_controller("human-file", human_file=replay, pad="hold")
+    # every ddqn-* job has its checkpoint (evaluate() gives it one)
+    return make_controller("ddqn" if job.method.startswith("ddqn") else job.method, checkpoint=job.checkpoint)
 
 
 def run_job(job: Job) -> Job:
     """Drive one job through its own server process; returns it when its log is written."""
     import torch
 
+    from agent_client.controllers import camera
     from agent_client.drive import drive_episode
     from agent_client.launcher import local_server
     from agent_client.session import Session
 
     torch.set_num_threads(1)  # one run per core
-    controller, image = _controller(job)
+    controller = _controller(job)
+    image, size = camera(controller)
     log = Path(job.log)
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
-    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=_image_size(controller), client_name=f"vacc-evaluate/{job.method}") as s:
+    with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
         drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log)
     if job.method == "lead":
         _lead_log(log, Path(job.log))

@@ -123,6 +123,39 @@ def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:
     return {"bytes_per_transition": memory.nbytes / capacity, "frame_bytes": float(FRAME_H * FRAME_W)}
 
 
+ICE_GAP = Config(
+    reward="gap", scenario="ice", total_steps=300_000, train_every=8, n_step=5, target_sync_every=1000,
+    exploration_steps=30_000, eval_every=10_000, zoom=2, seed=1,
+)  # the command of docs/training.md that trains models/ice-gap.pt
+TARGET_RMSE = 3.4  # [m] ice-gap's target: gap RMSE to 55 m on each test trajectory
+
+
+class _TargetReached(Exception):
+    def __init__(self, step: int, results: list[dict[str, Any]]):
+        super().__init__(step)
+        self.step, self.results = step, results
+
+
+def wall_clock_to_target(run_dir: str, cfg: Config = ICE_GAP, target: float = TARGET_RMSE) -> dict[str, Any]:
+    """Wall-clock [s] from scratch until an evaluation has gap RMSE <= ``target`` on each
+    test trajectory and no collision (the optional long figure of ``vacc bench --long``).
+
+    Returns:
+        wall_s, the step and the evaluation that reached it; reached False if
+        ``cfg.total_steps`` ran out first.
+    """
+    def check(step: int, results: list[dict[str, Any]]) -> None:
+        if all(r["gap_rmse_m"] <= target and not r["collision"] for r in results):
+            raise _TargetReached(step, results)
+
+    t0 = time.perf_counter()
+    try:
+        summary = train(cfg, run_dir, progress=False, on_eval=check)
+    except _TargetReached as hit:
+        return {"reached": True, "wall_s": time.perf_counter() - t0, "step": hit.step, "eval": hit.results, "schedule": cfg.schedule}
+    return {"reached": False, "wall_s": time.perf_counter() - t0, "step": summary["steps"], "eval": summary["last_eval"], "schedule": cfg.schedule}
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     """Every figure."""
     steps, starts = (600, 100) if quick else (3000, 1000)

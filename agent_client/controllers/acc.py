@@ -38,12 +38,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from protocol.constants import A_MAX, A_MIN
 from protocol.scenarios import DEFAULT_SET_SPEED
 
 __all__ = ["AccController", "force_of_accel"]
 
-A_MIN = -5.5  # [m/s^2] acceleration at u = -1 (the simulator's force map)
-A_MAX = 3.5  # [m/s^2] acceleration at u = +1
 V_STANDING = 0.1  # [m/s] a lead slower than this stands: stop d_safe behind it
 
 

@@ -13,6 +13,7 @@ from typing import Any
 from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rl.evaluation import eval_episode
+from protocol.scenarios import TEST_TRAJECTORIES
 
 __all__ = ["Config", "ConfigError", "SCHEDULES", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
@@ -47,11 +48,11 @@ class Config:
     """Environment steps (control periods of 0.1 s) to train for, in total."""
     seed: int = 1
     """Seeds numpy, torch, python random and the stream of episode seeds."""
-    schedule: str = "parallel"
-    """"parallel": the simulator and acting on one core, the gradient steps on the other;
-    the actor acts with the weights of exactly one update ago (bit-identical for a seed).
-    "serial": act, then update, on one core (the schedule the shipped models were trained
-    with; docs/training.md)."""
+    schedule: str = "serial"
+    """"serial": act, then take the gradient step, which uses torch_threads cores (on this
+    2-core machine the fastest: docs/training.md). "parallel": the gradient step runs on a
+    second thread while the loop acts the next train_every steps with the weights of exactly
+    one update ago (bit-identical for a seed; for a learner on a GPU, where acting dominates)."""
     learning_rate: float = 1e-4
     """Adam step size."""
     adam_eps: float = 1.5e-4
@@ -95,17 +96,19 @@ class Config:
     """[s] training episodes are truncated here (0 or None: the trajectory's 240 s)."""
     eval_every: int = 25_000
     """Steps between evaluations on eval_trajectories (0: only at the end)."""
-    eval_trajectories: tuple[str, ...] = ("test-1", "test-2", "test-3", "test-4")
+    eval_trajectories: tuple[str, ...] = TEST_TRAJECTORIES
     """Comma-separated evaluation trajectories; they pick best.pt: test-1..test-4 (seed 0,
-    as vacc drive uses), or random:SEED for a selection set held out from the tests."""
+    as vacc drive uses), random:SEED for a selection set held out from the tests, or a lead
+    scenario[:SEED] (docs/scenarios.md)."""
     eval_seconds: float | None = None
     """[s] evaluation episode length (0 or None: the whole 240 s trajectory)."""
     checkpoint_every: int = 10_000
     """Steps between full checkpoints (taken at the next episode end)."""
     init_from: str | None = None
     """A policy checkpoint whose weights start the run (fine-tuning, e.g. force from gap)."""
-    torch_threads: int = 1
-    """CPU threads for torch per thread of work (the machine is shared)."""
+    torch_threads: int = 2
+    """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
+    machine the weights are bit-identical to one thread's)."""
     cuda: bool = True
     """Use CUDA when it is available."""
     log_every: int = 500

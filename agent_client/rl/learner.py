@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 import random
+import sys
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -167,6 +168,9 @@ class Learner:
         if self.parallel:
             if not resume:
                 self.acting.load_state_dict(self.q.state_dict())
+            # The worker needs the GIL between torch ops; at the default 5 ms switch
+            # interval it would wait behind the acting thread's Python for most of a step.
+            sys.setswitchinterval(1e-4)
             self._worker: ThreadPoolExecutor | None = ThreadPoolExecutor(1, thread_name_prefix="vacc-learner")
         else:
             self._worker = None

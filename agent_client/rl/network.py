@@ -13,11 +13,10 @@ import torch
 import torch.nn as nn
 
 from agent_client.preprocess import FRAME_H, FRAME_W
-from protocol.constants import FORCE_LEVELS, N_ACTIONS
+from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = ["QNetwork", "FORCES", "N_ACTIONS", "greedy_action", "linear_schedule"]
 
-FORCES = np.asarray(FORCE_LEVELS)  # u of action a: -1 + 0.1 a
 
 
 class QNetwork(nn.Module):
