@@ -11,12 +11,10 @@ from typing import Any
 import click
 import numpy as np
 
-from agent_client.controllers.acc import AccController
+from agent_client.controllers import CONTROLLERS, camera, make_controller
 from agent_client.controllers.hdm import NAME as HDM_NAME
-from agent_client.controllers.hdm import HumanDriverModel
 from agent_client.controllers.human_file import (
     PADS,
-    HumanFileController,
     HumanFileHeader,
     HumanFileRecorder,
     RecordingController,
@@ -40,7 +38,6 @@ from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
 
-CONTROLLERS = ("acc", "hdm", "ddqn", "human-file", "keyboard")
 LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
 
 
@@ -174,11 +171,7 @@ def drive(
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
     policy: Any = None
     replay = None
-    if controller == "acc":
-        policy = AccController()
-    elif controller == "hdm":
-        policy = HumanDriverModel(seed=seed)  # errors seeded from the episode seed
-    elif controller == "human-file":
+    if controller == "human-file":
         if human_file is None:
             raise click.UsageError("--controller human-file needs --human-file PATH")
         try:
@@ -187,25 +180,20 @@ def drive(
         except ClientError as exc:
             raise click.ClickException(str(exc)) from None
         duration = replay.header.duration if duration is None else duration
-        policy = HumanFileController(replay, pad)
-    elif controller == "keyboard":
+    if controller == "keyboard":  # built inside its window, below
         try:
             require_pygame()  # fail before a server is spawned
         except ClientError as exc:
             raise click.ClickException(str(exc)) from None
         if server is not None:
             click.echo("note: --server given: start it with 'vacc serve --realtime' to drive at wall-clock speed", err=True)
-    elif controller == "ddqn":
-        if checkpoint is None:
+    else:
+        if controller == "ddqn" and checkpoint is None:
             raise click.UsageError("--controller ddqn needs --checkpoint PATH")
-        from agent_client.controllers.ddqn import DDQNController  # torch is imported only for ddqn
-
         try:
-            policy = DDQNController.from_checkpoint(checkpoint)
+            policy = make_controller(controller, seed=seed, checkpoint=checkpoint, human_file=replay, pad=pad)
         except ClientError as exc:
             raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
-    else:
-        raise click.UsageError(f"--controller {controller} is not available yet in this version")
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
@@ -216,12 +204,7 @@ def drive(
         except KeyFileError as exc:
             raise click.BadParameter(str(exc), param_hint="--key-file") from None
         server_args += ["--key-file", key_file]
-    image_format = "rgb" if live else "none"
-    image_size = LIVE_IMAGE
-    if controller == "ddqn":  # gray, at the size the checkpoint's preprocessing needs
-        from agent_client.preprocess import camera_size
-
-        image_format, image_size = "gray", camera_size(policy.cfg.zoom)
+    image_format, image_size = ("rgb", LIVE_IMAGE) if live else camera(policy)  # a DDQN checkpoint's zoom decides
     try:
         with (
             server_address(server, *server_args) as addr,
