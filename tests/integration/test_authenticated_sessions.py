@@ -150,7 +150,7 @@ def test_forged_spoofed_and_replayed_datagrams_are_rejected_and_counted(clean_lo
 def test_takeover_from_a_dead_clients_port_is_refused(spawn, key_file, tmp_path):
     key = load_key(key_file)
     stderr = tmp_path / "server.err"
-    with spawn("--port", "0", "--key-file", str(key_file), "--session-timeout", "1", stderr_path=stderr) as (proc, addr):
+    with spawn("--port", "0", "--key-file", str(key_file), "--session-timeout", "2", stderr_path=stderr) as (proc, addr):
         owner = Session(addr, key=key)
         owner.open()
         owner.reset(seed=0, duration=1.0)
