@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import queue
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Protocol
 
 import numpy as np
@@ -41,43 +43,63 @@ def eval_episode(name: str) -> tuple[str, int]:
     raise ValueError(f"evaluation trajectory {name!r} is not one of {EVAL_NAMES_HELP} (e.g. random:101)")
 
 
-def evaluate(q: Any, env: Any, trajectories: tuple[str, ...]) -> list[dict[str, Any]]:
+def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str, Any]]:
     """Greedy episodes; gap RMSE against 55 m and collisions.
+
+    With several envs (each with its own server), the episodes run on as many threads:
+    the servers render in parallel, and each episode is a function of its trajectory
+    alone, so the results are the same as one after the other.
 
     Args:
         q: the Q-network.
-        env: a :class:`VisionACCEnv` of the scenario.
+        envs: a :class:`VisionACCEnv` of the scenario, or a list of them.
         trajectories: names for :func:`eval_episode`, e.g. ("test-1", ..., "test-4")
             or ("random:101", "random:102").
 
     Returns:
-        One dict per trajectory: trajectory (its name), gap_rmse_m, collision, steps, reason.
+        One dict per trajectory, in their order: trajectory (its name), gap_rmse_m,
+        collision, steps, reason.
     """
+    pool = list(envs) if isinstance(envs, (list, tuple)) else [envs]
+    if len(pool) == 1:
+        return [_episode(q, pool[0], t) for t in trajectories]
+    free: queue.Queue[Any] = queue.Queue()
+    for env in pool:
+        free.put(env)
+
+    def run(trajectory: str) -> dict[str, Any]:
+        env = free.get()
+        try:
+            return _episode(q, env, trajectory)
+        finally:
+            free.put(env)
+
+    with ThreadPoolExecutor(len(pool), thread_name_prefix="vacc-eval") as ex:
+        return list(ex.map(run, trajectories))
+
+
+def _episode(q: Any, env: Any, trajectory: str) -> dict[str, Any]:
+    """One greedy episode of ``trajectory`` in ``env``."""
     from agent_client.rl.network import greedy_action
 
-    results = []
-    for trajectory in trajectories:
-        server_trajectory, seed = eval_episode(trajectory)
-        obs, info = env.reset(options={"seed": seed, "trajectory": server_trajectory})
-        gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0
-        done = False
-        while not done:
-            obs, _, terminated, truncated, info = env.step(greedy_action(q, obs["frames"], obs["speeds"]))
-            gaps.append(info["gap"])
-            collision = collision or bool(info["collision"])
-            steps += 1
-            done = terminated or truncated
-        g = np.asarray(gaps)
-        results.append(
-            {
-                "trajectory": trajectory,
-                "gap_rmse_m": float(np.sqrt(np.mean((g - DESIRED_GAP) ** 2))),
-                "collision": collision,
-                "steps": steps,
-                "reason": info["reason"],
-            }
-        )
-    return results
+    server_trajectory, seed = eval_episode(trajectory)
+    obs, info = env.reset(options={"seed": seed, "trajectory": server_trajectory})
+    gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(greedy_action(q, obs["frames"], obs["speeds"]))
+        gaps.append(info["gap"])
+        collision = collision or bool(info["collision"])
+        steps += 1
+        done = terminated or truncated
+    g = np.asarray(gaps)
+    return {
+        "trajectory": trajectory,
+        "gap_rmse_m": float(np.sqrt(np.mean((g - DESIRED_GAP) ** 2))),
+        "collision": collision,
+        "steps": steps,
+        "reason": info["reason"],
+    }
 
 
 def score(log: _Log, results: list[dict[str, Any]], step: int) -> float:

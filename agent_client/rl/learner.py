@@ -45,6 +45,7 @@ from agent_client.rl.scalars import ScalarLog
 __all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT"]
 
 SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
+EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
 MALLOC_KEEP = 1 << 30  # [B] freed memory glibc keeps for reuse instead of returning it to the OS
 
 
@@ -331,11 +332,13 @@ class Learner:
         cfg = self.cfg
         self.wait()
         if self._eval_env is None:
-            self._eval_env = VisionACCEnv(
+            self._eval_env = []
+        while len(self._eval_env) < min(len(cfg.eval_trajectories), EVAL_PARALLEL):  # an env (and server) per episode run at once
+            self._eval_env.append(VisionACCEnv(
                 scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=self.server_args, zoom=cfg.zoom,
-            )  # fmt: skip
+            ))  # fmt: skip
         self.q.eval()
         self.last_eval = evaluate(self.q, self._eval_env, cfg.eval_trajectories)
         self.q.train()
@@ -396,6 +399,6 @@ class Learner:
                 self._worker = None
         finally:
             self.log.close()
-            if self._eval_env is not None:
-                self._eval_env.close()
-                self._eval_env = None
+            for env in self._eval_env or []:
+                env.close()
+            self._eval_env = None
