@@ -300,7 +300,7 @@ def _cpu() -> str:
 def run_bench(quick: bool) -> dict[str, Any]:
     steps, reps = (500, 3) if quick else (3000, 5)
     rows: dict[str, Any] = {}
-    with click.progressbar(length=11, label="bench", file=sys.stderr) as bar:
+    with click.progressbar(length=12, label="bench", file=sys.stderr) as bar:
         rows["udp_echo"] = udp_echo(steps, reps)
         bar.update(1)
         rows["lockstep_no_image"] = lockstep(steps, reps)
@@ -323,18 +323,23 @@ def run_bench(quick: bool) -> dict[str, Any]:
 
         lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)
         rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}}
+        sample = ddqn_bench.sample_latency(capacity=20_000 if quick else 100_000)
+        rows["replay_sample"] = {"ms": {"median": sample["median_s"] * 1e3, "p90": sample["p90_s"] * 1e3}, "capacity": sample["capacity"]}
+        rows["update_cost"] = {"ms": ddqn_bench.update_cost(10 if quick else 30)["median_s"] * 1e3}
         bar.update(1)
         train_steps, starts = (600, 200) if quick else (6000, 1000)
         rows["ddqn_training"] = ddqn_bench.training_rate(train_steps, starts)
+        rows["ddqn_training_parallel"] = ddqn_bench.training_rate(train_steps, starts, schedule="parallel")
         bar.update(1)
-        rows["sb3_dqn_peer"] = bench_sb3.sb3_training_rate(train_steps, starts)
+        rows["sb3_dqn_peer"] = bench_sb3.sb3_training_rate_isolated(train_steps, starts)
         bar.update(1)
         rows["replay"] = ddqn_bench.replay_bytes_per_transition()
         rows["sb3_replay_peer"] = bench_sb3.sb3_replay_bytes()
         rows["training_peak_rss"] = training_peak_rss(1500 if quick else 50_000)
         bar.update(1)
     if "error" not in rows["sb3_dqn_peer"]:
-        rows["ddqn_training"]["x_sb3"] = rows["ddqn_training"]["steps_per_s_overall"] / rows["sb3_dqn_peer"]["steps_per_s_overall"]
+        for name in ("ddqn_training", "ddqn_training_parallel"):
+            rows[name]["x_sb3"] = rows[name]["steps_per_s_overall"] / rows["sb3_dqn_peer"]["steps_per_s_overall"]
     if "error" not in rows["sb3_replay_peer"]:
         rows["replay"]["fraction_of_sb3"] = rows["replay"]["bytes_per_transition"] / rows["sb3_replay_peer"]["bytes_per_transition"]
     if "error" not in rows["highway_env_peer"]:
@@ -387,12 +392,19 @@ def format_table(result: dict[str, Any]) -> str:
         r = peer["steps_per_s"]
         lines.append(f"{'highway-env highway-v0 (peer)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  8x150x105 gray, 50 Hz")
     d = f["decision_latency"]["ms"]
-    lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 1 ms (paper 3.58 ms GPU)")
-    t = f["ddqn_training"]
-    x = t.get("x_sb3")
-    lines.append(f"{'DDQN training (UDP, learning)':34} {t['steps_per_s_overall']:>9.1f} /s {'':>22}  >= 1.5x SB3" + (f" ({x:.2f}x)" if x else ""))
+    lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 0.5 ms (paper 3.58 ms GPU)")
+    d = f["replay_sample"]["ms"]
+    lines.append(f"{'replay sample, 32 x 5-step returns':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 1 ms ({f['replay_sample']['capacity']} full)")
+    lines.append(f"{'batch-32 update (1 thread, CPU time)':34} {f['update_cost']['ms']:>9.1f} ms")
+    for name, label in (("ddqn_training", "DDQN training, serial (default)"), ("ddqn_training_parallel", "DDQN training, --schedule parallel")):
+        t = f[name]
+        x = t.get("x_sb3")
+        lines.append(f"{label:34} {t['steps_per_s_overall']:>9.1f} /s {'':>22}  >= 1.5x SB3" + (f" ({x:.2f}x)" if x else ""))
     peer = f["sb3_dqn_peer"]
-    lines.append(f"{'SB3 DQN, same net and env (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['steps_per_s_overall']:>9.1f} /s"))
+    lines.append(f"{'SB3 DQN, same net and env (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['steps_per_s_overall']:>9.1f} /s  (own process, {peer.get('threads', 1)} threads)"))
+    if "to_target" in f:
+        r = f["to_target"]
+        lines.append(f"{'ice-gap from scratch to target':34} {r['wall_s'] / 60:>9.1f} min {'at step ' + str(r['step']):>21}  <= 30 min" + ("" if r["reached"] else " (NOT reached)"))
     r = f["replay"]
     frac = r.get("fraction_of_sb3")
     lines.append(f"{'replay bytes per transition':34} {r['bytes_per_transition']:>9.0f} B  {'':>21}  <= 1/5 of SB3" + (f" (1/{1 / frac:.1f})" if frac else ""))
@@ -416,9 +428,17 @@ def format_table(result: dict[str, Any]) -> str:
 @click.command("bench")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Also write the figures as JSON.")
 @click.option("--quick", is_flag=True, help="Fewer repetitions (under 2 minutes), for CI smoke.")
-def bench(json_path: str | None, quick: bool) -> None:
-    """Measure lockstep, rendering and echo figures side by side."""
+@click.option("--long", "long_", is_flag=True, help="Also train ice-gap from scratch to its target (<= 3.4 m on each test trajectory) and time it (about 30-40 min).")
+def bench(json_path: str | None, quick: bool, long_: bool) -> None:
+    """Measure lockstep, rendering, the learner and its peers side by side."""
     result = run_bench(quick)
+    if long_:
+        import tempfile
+
+        from agent_client.bench import ddqn as ddqn_bench
+
+        with tempfile.TemporaryDirectory(prefix="vacc-to-target-") as tmp:
+            result["figures"]["to_target"] = ddqn_bench.wall_clock_to_target(tmp)
     click.echo(format_table(result))
     if json_path:
         Path(json_path).parent.mkdir(parents=True, exist_ok=True)

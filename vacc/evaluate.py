@@ -327,8 +327,22 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--seed", default=0, show_default=True, type=int, help="Episode seed (initial conditions, traffic).")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
-def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float) -> None:
-    """Run every method on test-1..test-4 over UDP and write the paper's tables and figures."""
+@click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table.")
+@click.option("--seeds", default="0-9", show_default=True, help="--suite safety: episode seeds, e.g. 0-9 or 0,3,5.")
+def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float, suite: str, seeds: str) -> None:
+    """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
+    (or, with --suite safety, drive every lead scenario and write a pass/fail table)."""
+    if suite == "safety":
+        from vacc.safety import parse_seeds, run_suite
+
+        try:
+            seed_list = parse_seeds(seeds)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--seeds") from None
+        found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in ("ice", "ev")}
+        click.echo(run_suite(Path(out), found, seed_list, jobs, run_job, Job))
+        click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
+        return
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = sorted(set(chosen) - set(METHODS))
     if unknown:

@@ -1,0 +1,59 @@
+"""`vacc evaluate --suite safety`: seeds, per-run verdicts on hand-made logs, and a real run of the ACC."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, score_run
+
+HEADER = "t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n"
+
+
+def _log(tmp_path, rows):
+    path = tmp_path / "run.csv"
+    path.write_text(HEADER + "".join(f"{i * 0.1},{i},{v},0,{g},0,0,{c},0\n" for i, (v, g, c) in enumerate(rows)))
+    return path
+
+
+def test_seed_lists():
+    assert parse_seeds("0-9") == list(range(10))
+    assert parse_seeds("0,3,5") == [0, 3, 5]
+    assert parse_seeds("0-2,7,2") == [0, 1, 2, 7]
+    for bad in ("", "a", "3-1", "-2", "1-"):
+        with pytest.raises(ValueError):
+            parse_seeds(bad)
+
+
+def test_a_run_passes_only_without_collision_close_gap_or_overspeed(tmp_path):
+    assert score_run(_log(tmp_path, [(20.0, 30.0, 0), (10.0, MIN_GAP, 0), (0.0, 4.0, 0)]))["passed"]
+    hit = score_run(_log(tmp_path, [(20.0, 30.0, 0), (10.0, 0.0, 1)]))
+    assert hit["collision"] and not hit["passed"]
+    close = score_run(_log(tmp_path, [(20.0, 30.0, 0), (5.0, MIN_GAP - 0.01, 0)]))
+    assert not close["collision"] and close["min_gap_m"] == pytest.approx(MIN_GAP - 0.01) and not close["passed"]
+    fast = score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN + 0.01, 60.0, 0)]))
+    assert fast["max_speed_mps"] > 34.0 and not fast["passed"]
+    assert score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN, 60.0, 0)]))["passed"]
+
+
+def test_the_acc_passes_every_scenario(tmp_path):
+    out = tmp_path / "safety"
+    result = subprocess.run(
+        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--seeds", "0", "--models", str(tmp_path / "none"), "--out", str(out), "--jobs", "2"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    table = (out / "safety.md").read_text()
+    for name in ("stopped", "brake-stop", "brake-hard", "slow-lead", "catch-up", "stop-and-go", "constant"):
+        assert f"| acc (ice) | {name} | 1/1 | 0 |" in table and f"| acc (ev) | {name} | 1/1 |" in table, name
+    assert "FAIL" not in table
+
+
+def test_bad_seeds_fail_naming_the_option(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--seeds", "9-1", "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 2 and "--seeds" in result.stderr

@@ -1,0 +1,132 @@
+"""`vacc evaluate --suite safety`: every method through every lead scenario over many seeds.
+
+A run passes when it has no collision, its minimum gap is at least
+:data:`MIN_GAP` and its speed never exceeds the set speed by more than
+:data:`SPEED_MARGIN` (ISO 15622 stopping on a stopped or stopping target, Euro NCAP
+CCRs/CCRm/CCRb shapes; ``docs/scenarios.md``). Each DDQN model drives the scenario it
+was trained for (ice-* the ICE car, ev-* the EV); the ACC drives both.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS
+
+__all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
+
+MIN_GAP = 2.0  # [m] smallest gap a passing run may reach
+SPEED_MARGIN = 0.5  # [m/s] a passing run stays at or below the set speed plus this
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'0-9' or '0,3,5' (or a mix, '0-2,7') to a sorted list of seeds.
+
+    Raises:
+        ValueError: anything else, or an empty set.
+    """
+    seeds: set[int] = set()
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        lo, sep, hi = part.partition("-")
+        if not lo.isdigit() or (sep and not hi.isdigit()):
+            raise ValueError(f"{text!r} is not a seed list like 0-9 or 0,3,5")
+        a, b = int(lo), int(hi) if sep else int(lo)
+        if b < a or b - a > 10_000:
+            raise ValueError(f"{part!r} is not an increasing range of at most 10,000 seeds")
+        seeds.update(range(a, b + 1))
+    if not seeds:
+        raise ValueError(f"{text!r} names no seed")
+    return sorted(seeds)
+
+
+def safety_jobs(job_type: Callable[..., Any], out: Path, models: dict[str, str], seeds: Iterable[int], scenarios: Iterable[str] = tuple(LEAD_SCENARIOS)) -> list[Any]:
+    """The runs of the suite: (method, vehicle) x lead scenario x seed.
+
+    Args:
+        job_type: :class:`vacc.evaluate.Job`.
+        out: the output folder (logs go to ``out/logs``).
+        models: method name ("ice-gap", ...) to checkpoint path; the vehicle is the prefix.
+        seeds: episode seeds.
+        scenarios: lead scenario names.
+    """
+    drivers = [("acc", "ice", None), ("acc", "ev", None)] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
+    return [
+        job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
+                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path)  # fmt: skip
+        for method, vehicle, path in drivers
+        for trajectory in scenarios
+        for seed in seeds
+    ]
+
+
+def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED) -> dict[str, Any]:
+    """Collision, minimum gap [m] and maximum speed [m/s] of one run log, and whether it passes."""
+    with open(log, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise click.ClickException(f"{log}: an empty run log")
+    gap = np.array([float(r["gap"]) for r in rows])
+    speed = np.array([float(r["v_host"]) for r in rows])
+    collision = any(r["collision"] == "1" for r in rows)
+    min_gap, max_speed = float(gap.min()), float(speed.max())
+    ok = not collision and min_gap >= MIN_GAP and max_speed <= set_speed + SPEED_MARGIN
+    return {"collision": collision, "min_gap_m": min_gap, "max_speed_mps": max_speed, "passed": ok}
+
+
+def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+    """A markdown pass/fail table (one row per driver and scenario) and its rows."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for job, score in zip(jobs, scores, strict=True):
+        driver = job.method if job.checkpoint is None else Path(job.checkpoint).stem
+        groups.setdefault((f"{driver} ({job.scenario})", job.trajectory), []).append(score)
+    rows = []
+    for (driver, scenario), runs in groups.items():
+        rows.append({
+            "driver": driver, "scenario": scenario, "runs": len(runs), "passed": sum(r["passed"] for r in runs),
+            "collisions": sum(r["collision"] for r in runs), "min_gap_m": min(r["min_gap_m"] for r in runs),
+            "max_speed_mps": max(r["max_speed_mps"] for r in runs),
+        })  # fmt: skip
+    lines = [
+        f"Pass: no collision, minimum gap >= {MIN_GAP:g} m, speed <= set speed ({DEFAULT_SET_SPEED:g} m/s) + {SPEED_MARGIN:g} m/s.",
+        "",
+        "| driver | scenario | passed | collisions | min gap (m) | max speed (m/s) | verdict |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        verdict = "PASS" if r["passed"] == r["runs"] else "FAIL"
+        lines.append(f"| {r['driver']} | {r['scenario']} | {r['passed']}/{r['runs']} | {r['collisions']} | {r['min_gap_m']:.2f} | {r['max_speed_mps']:.2f} | {verdict} |")
+    return "\n".join(lines) + "\n", rows
+
+
+def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, run_job: Callable[[Any], Any], job_type: Callable[..., Any]) -> str:
+    """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
+
+    Returns:
+        The markdown table.
+    """
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    work = safety_jobs(job_type, out, models, seeds)
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label="safety suite", file=None) as bar:
+        futures = [pool.submit(run_job, j) for j in work]
+        try:
+            for fut in as_completed(futures):
+                fut.result()
+                bar.update(1)
+        except Exception as exc:
+            for f in futures:
+                f.cancel()
+            raise click.ClickException(f"a run failed: {exc}") from None
+    table, rows = safety_table(work, [score_run(j.log) for j in work])
+    (out / "safety.md").write_text("# Safety suite\n\n" + table)
+    with open(out / "safety.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return table
