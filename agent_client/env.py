@@ -15,7 +15,7 @@ from gymnasium import spaces
 from agent_client import preprocess as pre
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
-from agent_client.rewards import REWARDS
+from agent_client.rewards import REWARDS, make_reward
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
@@ -44,7 +44,8 @@ class VisionACCEnv(gym.Env):
 
     ## Rewards
     Table 1 of the paper (:mod:`agent_client.rewards`): ``reward="gap"`` or
-    ``"force"``, normalised to [-1, 1].
+    ``"force"``, normalised to [-1, 1]; or ``"eco"``: the gap term minus the host's
+    instantaneous energy and jerk (beyond the paper).
 
     ## Starting state
     Table 2 of the paper for the scenario (or the lead scenario's own ranges,
@@ -108,7 +109,8 @@ class VisionACCEnv(gym.Env):
         self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
         self.set_speed = set_speed
-        self.reward_fn = REWARDS[reward]
+        self.reward_fn = make_reward(reward, scenario)
+        self._a_prev = 0.0  # [m/s^2] the host's acceleration over the previous step
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self.episode_seconds = episode_seconds
         self.render_mode = render_mode
@@ -162,6 +164,7 @@ class VisionACCEnv(gym.Env):
             set_speed=set_speed,
         )
         self._stacker.reset()
+        self._a_prev = float(obs.get("accel", 0.0))
         info = self._info(obs)
         info["seed"] = episode_seed
         return self._observe(obs), info
@@ -171,7 +174,9 @@ class VisionACCEnv(gym.Env):
             raise ValueError(f"action {action!r} is not in {self.action_space}")
         u = float(FORCES[int(action)])
         obs = self.session.step(u)
-        reward = self.reward_fn(obs["gap"], u)
+        a = float(obs["accel"])
+        reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev)
+        self._a_prev = a
         return self._observe(obs), reward, bool(obs["terminated"]), bool(obs["truncated"]), self._info(obs)
 
     def render(self):

@@ -13,15 +13,34 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
 * ``gap`` reward = r_gap / 10, in [-1, 1].
 * ``force`` reward = (r_gap + r_force) / 20, in [-0.5, 1]: the sum, normalised
   by its largest magnitude so it stays in [-1, 1].
+* ``eco`` reward (beyond the paper, its first item of future work): the gap term, minus
+  the instantaneous energy of the host (CMEM fuel rate for the ICE car, the eq. 6 battery
+  power for the EV, each over its full-throttle value at 30 m/s), minus a comfort term
+  (the jerk over one control period, over 4x ISO 15622's 2.5 m/s^3), weighted by
+  :data:`ECO_WEIGHTS` and normalised by their sum so it stays in [-1, 1]. The energy and
+  the jerk come from the host's own speed and acceleration, never the lead's: privileged
+  only in that they shape training, as the gap does.
+
+Every reward takes (gap, u) and, as keywords, the host's speed ``v`` [m/s], its
+acceleration ``a`` [m/s^2] over the step and the acceleration ``a_prev`` of the step
+before; the paper's two ignore them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-__all__ = ["GAP_POINTS", "FORCE_HALF_WIDTH", "gap_term", "force_term", "gap_reward", "force_reward", "REWARDS"]
+from energy.cmem import COROLLA_2022, cmem_rates
+from energy.comfort import ISO_JERK_LIMIT_MPS3
+from energy.ev import eq6_power_kw
+
+__all__ = [
+    "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "gap_term", "force_term", "energy_term", "comfort_term",
+    "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
+]  # fmt: skip
 
 GAP_POINTS = ((0.0, -10.0), (30.0, 0.0), (55.0, 10.0), (80.0, 0.0), (300.0, -5.0))  # ([m], raw reward)
 FORCE_PEAK = 10.0  # raw reward at u = 0
@@ -40,14 +59,58 @@ def force_term(u: float) -> float:
     return FORCE_PEAK * max(0.0, 1.0 - abs(u) / FORCE_HALF_WIDTH)
 
 
-def gap_reward(gap: float, u: float) -> float:
+FUEL_FULL = 19.1  # [g/s] Corolla CMEM fuel rate at 30 m/s and full throttle (3.5 m/s^2)
+POWER_FULL = 246.5  # [kW] Leaf eq. 6 battery power at 30 m/s and full throttle
+JERK_FULL = 4.0 * ISO_JERK_LIMIT_MPS3  # [m/s^3] the comfort term's full scale
+CONTROL_PERIOD = 0.1  # [s] the simulator's default decision period
+# Initial weights (gap, energy, comfort); not yet tuned by an ablation (docs/training.md).
+ECO_WEIGHTS = (1.0, 0.5, 0.25)
+
+
+def energy_term(v: float, a: float, scenario: str) -> float:
+    """The host's instantaneous energy use over its full-throttle value, in [-1, 1].
+
+    ICE: CMEM fuel rate (>= 0; fuel cut when coasting). EV: eq. 6 battery power, negative
+    while regenerating.
+    """
+    va, aa = np.array([v], float), np.array([a], float)
+    if scenario == "ice":
+        return float(min(1.0, cmem_rates(va, aa, COROLLA_2022).fuel_g_s[0] / FUEL_FULL))
+    return float(np.clip(eq6_power_kw(va, aa)[0] / POWER_FULL, -1.0, 1.0))
+
+
+def comfort_term(a: float, a_prev: float, dt: float = CONTROL_PERIOD) -> float:
+    """Jerk over one control period, |a - a_prev| / dt, over :data:`JERK_FULL`, at most 1."""
+    return min(1.0, abs(a - a_prev) / dt / JERK_FULL)
+
+
+def gap_reward(gap: float, u: float, **_: Any) -> float:
     """Gap-based DDQN reward in [-1, 1]; ignores the force."""
     return gap_term(gap) / 10.0
 
 
-def force_reward(gap: float, u: float) -> float:
+def force_reward(gap: float, u: float, **_: Any) -> float:
     """Force-based DDQN reward in [-1, 1]: gap and force terms together."""
     return (gap_term(gap) + force_term(u)) / 20.0
 
 
-REWARDS: dict[str, Callable[[float, float], float]] = {"gap": gap_reward, "force": force_reward}
+def eco_reward(gap: float, u: float, *, v: float, a: float, a_prev: float, scenario: str = "ice", **_: Any) -> float:
+    """Eco reward in [-1, 1]: gap term, minus energy, minus jerk (see the module docstring)."""
+    w_gap, w_energy, w_comfort = ECO_WEIGHTS
+    total = w_gap * gap_term(gap) / 10.0 - w_energy * energy_term(v, a, scenario) - w_comfort * comfort_term(a, a_prev)
+    return total / (w_gap + w_energy + w_comfort)
+
+
+REWARDS: dict[str, Callable[..., float]] = {"gap": gap_reward, "force": force_reward, "eco": eco_reward}
+
+
+def make_reward(name: str, scenario: str) -> Callable[..., float]:
+    """The reward function ``name`` for the host of ``scenario`` ("ice" or "ev").
+
+    Raises:
+        ValueError: an unknown name.
+    """
+    if name not in REWARDS:
+        raise ValueError(f"reward {name!r} is not one of {sorted(REWARDS)}")
+    fn = REWARDS[name]
+    return (lambda gap, u, **kw: fn(gap, u, scenario=scenario, **kw)) if name == "eco" else fn

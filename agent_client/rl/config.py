@@ -41,7 +41,8 @@ class Config:
     """Every setting of a training run. The CLI only fills this in."""
 
     reward: str = "gap"
-    """Table 1 reward: "gap" (gap term only) or "force" (gap + force terms)."""
+    """Reward: "gap" (Table 1, gap term only), "force" (gap + force terms), or "eco" (gap term
+    minus the host's energy and jerk; agent_client/rewards.py)."""
     scenario: str = "ice"
     """Simulator scenario: "ice" (eq. 7 lead trajectories) or "ev" (real traces)."""
     total_steps: int = 200_000
