@@ -157,6 +157,24 @@ def run_job(job: Job) -> Job:
     return job
 
 
+def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
+    """Drive every job, ``jobs`` at a time (each in its own process with its own server).
+
+    Raises:
+        click.ClickException: a run failed; the others are cancelled.
+    """
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label=label, file=None) as bar:
+        futures = [pool.submit(run_job, j) for j in work]
+        try:
+            for fut in as_completed(futures):
+                fut.result()
+                bar.update(1)
+        except Exception as exc:
+            for f in futures:
+                f.cancel()
+            raise click.ClickException(f"a run failed: {exc}") from None
+
+
 def _lead_log(follower: Path, out: Path) -> None:
     # The lead's own run: its speed and acceleration as the "host" of a log.
     with follower.open() as f, out.open("w", newline="\n") as g:
@@ -340,7 +358,7 @@ def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tu
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--seeds") from None
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in ("ice", "ev")}
-        click.echo(run_suite(Path(out), found, seed_list, jobs, run_job, Job))
+        click.echo(run_suite(Path(out), found, seed_list, jobs))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
@@ -369,16 +387,7 @@ def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tu
         for m in chosen
         for t in TRAJECTORIES
     ]
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label=f"evaluate {scenario}", file=None) as bar:
-        futures = [pool.submit(run_job, j) for j in work]
-        try:
-            for fut in as_completed(futures):
-                fut.result()
-                bar.update(1)
-        except Exception as exc:
-            for f in futures:
-                f.cancel()
-            raise click.ClickException(f"a run failed: {exc}") from None
+    drive_jobs(work, jobs, f"evaluate {scenario}")
     veh = vehicle or DEFAULT_VEHICLE[scenario]
     build_tables(out_dir, scenario, chosen, labels, veh, settle)
     plot_runs(out_dir, chosen, labels)

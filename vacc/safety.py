@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -105,24 +104,17 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     return "\n".join(lines) + "\n", rows
 
 
-def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, run_job: Callable[[Any], Any], job_type: Callable[..., Any]) -> str:
+def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int) -> str:
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
         The markdown table.
     """
+    from vacc.evaluate import Job, drive_jobs
+
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(job_type, out, models, seeds)
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label="safety suite", file=None) as bar:
-        futures = [pool.submit(run_job, j) for j in work]
-        try:
-            for fut in as_completed(futures):
-                fut.result()
-                bar.update(1)
-        except Exception as exc:
-            for f in futures:
-                f.cancel()
-            raise click.ClickException(f"a run failed: {exc}") from None
+    work = safety_jobs(Job, out, models, seeds)
+    drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)
     with open(out / "safety.csv", "w", newline="") as f:
