@@ -21,10 +21,10 @@ from typing import Any
 
 import click
 
-from agent_client.errors import ClientError
+from agent_client.errors import ClientError, InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
-from agent_client.rl.config import SCHEDULES, Config, ConfigError
+from agent_client.rl.config import SCHEDULES, Config, ConfigError, config_from
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]
@@ -111,7 +111,35 @@ def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    """First Ctrl-C: stop at the next step with a checkpoint. Second: abort."""
+    from agent_client.rl.train import STOP
+
+    if STOP.is_set():
+        raise SystemExit(128 + signum)
+    STOP.set()
+    click.echo("\nvacc train: stopping after this step with a checkpoint (Ctrl-C again to abort)", err=True)
+
+
+def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """--config FILE: a run's config.json gives the defaults; options given override them."""
+    if value is None:
+        return None
+    try:
+        saved = json.loads(Path(value).read_text())
+        cfg = config_from(saved, value)
+    except (OSError, ValueError, InputFileError) as exc:
+        raise click.BadParameter(f"{value}: not a readable config.json ({exc})", param_hint="--config") from None
+    defaults = {}
+    for f in dataclasses.fields(Config):
+        v = getattr(cfg, f.name)
+        defaults[f.name] = ",".join(v) if isinstance(v, tuple) else (str(v) if f.name in CHOICES else v)
+    ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    return value
+
+
 @click.command("train")
+@click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="Start from a run's config.json: its settings are the defaults, options given override them.")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
 @click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
 @click.option("--overwrite", is_flag=True, help="Start afresh in an --out that already holds a run (its files are replaced).")
@@ -146,7 +174,7 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     # A plain `kill` or Ctrl-C reaps the spawned servers and actors (the finally blocks
     # run); both leave through SystemExit, one shutdown path.
     signal.signal(signal.SIGTERM, _terminate)
-    signal.signal(signal.SIGINT, _terminate)
+    signal.signal(signal.SIGINT, _interrupt if not distributed else _terminate)
     try:
         if distributed:
             from agent_client.rl.distributed import import_ray, train_distributed
@@ -162,6 +190,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
+    if summary.get("stopped"):
+        click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: vacc train --config {run / 'config.json'} --out {run} --resume")
     if distributed:
         click.echo(
             f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "
@@ -170,3 +200,5 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     for r in summary["last_eval"]:
         click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
     (run / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    if summary.get("stopped"):
+        raise SystemExit(130)  # as a Ctrl-C ends a program, but with the run saved

@@ -18,6 +18,7 @@ evaluation so far (< 5 MB).
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -33,7 +34,10 @@ from agent_client.rl.network import N_ACTIONS, linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
 
-__all__ = ["train", "LoopState"]
+__all__ = ["train", "LoopState", "STOP"]
+
+# Set (by the CLI's first Ctrl-C) to end the run at the next step with a checkpoint.
+STOP = threading.Event()
 
 
 @dataclass
@@ -118,6 +122,7 @@ def train(
         "last_eval": learner.last_eval,
         "wall_s": wall_s,
         "schedule": cfg.schedule,
+        "stopped": STOP.is_set(),
         "replay_bytes_per_transition": memory.nbytes / memory.capacity,
     }
 
@@ -138,7 +143,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             obs, _ = env.reset(options={"seed": int(rng.integers(2**31))})
             memory.start(obs)
             episode_return, episode_len, done = 0.0, 0, False
-            while not done and state.global_step < cfg.total_steps:
+            while not done and state.global_step < cfg.total_steps and not STOP.is_set():
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
                 action = int(rng.integers(N_ACTIONS)) if rng.random() < epsilon else learner.act(obs)
                 obs, reward, terminated, truncated, _ = env.step(action)
@@ -160,6 +165,9 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                                     ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()), ("epsilon", epsilon)):  # fmt: skip
                     log.add(f"charts/{name}", value, state.global_step)
             state.recent_returns = list(recent)
+            if STOP.is_set():  # asked to stop: keep what was learned, resumable
+                learner.checkpoint(asdict(state), memory)
+                break
             _evaluate_and_checkpoint(cfg, learner, memory, state, grid)
         final_sps = sps()
         learner.wait()

@@ -190,3 +190,38 @@ def test_checkpoints_without_a_zoom_are_the_papers_pipeline(tmp_path):
     ckpt["version"] = 1  # as written before checkpoints carried a digest
     torch.save(ckpt, path)
     assert load_policy(path)[1].zoom == 1
+
+
+def test_first_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "vacc", "train", "--reward", "gap", "--steps", "100000", "--learning-starts", "20",
+            "--buffer-size", "2000", "--episode-seconds", "3", "--eval-trajectories", "test-1", "--eval-seconds", "0.5",
+            "--eval-every", "0", "--checkpoint-every", "100000", "--quiet", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "config.json").exists():  # the learner is built
+            assert proc.poll() is None and time.monotonic() < deadline, "training did not start"
+            time.sleep(0.2)
+        time.sleep(5)  # some steps
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert "Ctrl-C again to abort" in stderr and "--resume" in stdout
+    assert (out / "latest.pt").exists() and not list(out.glob("*.tmp"))
+    step = torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"]
+    assert 0 < step < 100000
+    # the printed command resumes it, its settings read back from config.json
+    resumed = subprocess.run([sys.executable, "-m", "vacc", "train", "--config", str(out / "config.json"), "--out", str(out),
+                              "--resume", "--steps", str(step + 30), "--quiet"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    assert torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"] == step + 30
