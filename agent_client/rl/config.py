@@ -13,7 +13,7 @@ from typing import Any
 from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rl.evaluation import eval_episode
-from protocol.scenarios import TEST_TRAJECTORIES
+from protocol.scenarios import DEFAULT_SET_SPEED, SET_SPEED_RANGE, TEST_TRAJECTORIES
 
 __all__ = ["Config", "ConfigError", "SCHEDULES", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
@@ -25,7 +25,7 @@ SCHEDULES = ("parallel", "serial")
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
-LEGACY_VALUES = {"schedule": "serial"}
+LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1]}
 
 
 class ConfigError(ValueError):
@@ -45,6 +45,9 @@ class Config:
     minus the host's energy and jerk; agent_client/rewards.py)."""
     scenario: str = "ice"
     """Simulator scenario: "ice" (eq. 7 lead trajectories) or "ev" (real traces)."""
+    set_speed: float = DEFAULT_SET_SPEED
+    """[m/s] cruise set speed of training and evaluation episodes: the host's speed limiter
+    holds it (docs/scenarios.md). Runs from before the limiter are repeated with 80."""
     total_steps: int = 200_000
     """Environment steps (control periods of 0.1 s) to train for, in total."""
     seed: int = 1
@@ -150,6 +153,8 @@ class Config:
                 raise bad(name, "must be in [0, 1]")
         if not self.learning_rate > 0.0:
             raise bad("learning_rate", "must be > 0")
+        if not SET_SPEED_RANGE[0] <= self.set_speed <= SET_SPEED_RANGE[1]:
+            raise bad("set_speed", f"must be in {SET_SPEED_RANGE[0]:g}..{SET_SPEED_RANGE[1]:g} m/s")
         if self.zoom not in ZOOMS:
             raise bad("zoom", f"must be one of {ZOOMS}")
         for name in self.eval_trajectories:

@@ -185,7 +185,7 @@ class StreamActor:
         self.token = f"{os.getpid()}.{StreamActor._made}"
         self.env = VisionACCEnv(
             scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
-            stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,
+            stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom, set_speed=cfg.set_speed,
             server_args=("--session-timeout", str(SESSION_TIMEOUT), *server_args),
         )  # fmt: skip
         self.q = QNetwork.of(cfg).eval()

@@ -108,6 +108,7 @@ def train(
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
+            set_speed=cfg.set_speed,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)
     finally:

@@ -64,7 +64,7 @@ def test_csv_lead_is_driven_as_given(tmp_path):
         (["--host-speed", "20", "--set-speed", "15"], "host speed 20.0 m/s is outside 0..15 m/s"),
         (["--gap", "-3"], "Invalid value for --gap: gap -3.0 m is outside (0, 300) m"),
         (["--gap", "nan"], "gap nan m is outside"),
-        (["--set-speed", "0"], "Invalid value for --set-speed: set speed 0.0 m/s is outside 1..50 m/s"),
+        (["--set-speed", "0"], "Invalid value for --set-speed: set speed 0.0 m/s is outside 1..80 m/s"),
         (["--trajectory", "parked"], "unknown trajectory 'parked'; expected one of test-1, test-2, test-3, test-4, random, stopped,"),
     ],
 )

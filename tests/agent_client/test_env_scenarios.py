@@ -34,7 +34,7 @@ def test_lead_scenario_and_reset_options(server):
         ({"trajectory": "parked"}, "unknown trajectory 'parked'"),
         ({"host_speed": 40.0}, "host speed 40.0 m/s is outside 0..33.5 m/s"),
         ({"gap": 0.0}, "gap 0.0 m is outside"),
-        ({"set_speed": 99.0}, "set speed 99.0 m/s is outside 1..50 m/s"),
+        ({"set_speed": 99.0}, "set speed 99.0 m/s is outside 1..80 m/s"),
         ({"sett_speed": 20.0}, "unknown reset options ['sett_speed']"),
     ],
 )
