@@ -32,6 +32,8 @@ def start_server(args: list[str], timeout: float, stderr: int | None = None) -> 
         ServerLaunchError: if it does not report its address within ``timeout`` [s].
     """
     # --parent-pid: the server exits by itself if we die without reaping it.
+    if stderr is None and "--log-level" not in args:  # a terminal's: quiet unless asked (VACC_SERVER_LOG_LEVEL)
+        args = [*args, "--log-level", os.environ.get("VACC_SERVER_LOG_LEVEL", "warning")]
     cmd = [sys.executable, "-m", "sim_server", "--port", "0", "--parent-pid", str(os.getpid()), *args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import signal
 import sys
 
@@ -24,6 +25,10 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
         raise click.BadParameter(str(exc)) from None
 
 
+LOG_LEVELS = ("debug", "info", "warning", "error")
+log = logging.getLogger("vacc.server")
+
+
 @click.command("serve")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
 @click.option("--port", default=47800, show_default=True, type=click.IntRange(0, 65535), help="UDP port; 0 picks a free one.")
@@ -37,6 +42,7 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key: every datagram both ways carries a MAC; clients need the same file.")
 @click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
 @click.option("--parent-pid", default=None, type=int, help="Exit when this process dies (set by launchers).")
+@click.option("--log-level", default="info", show_default=True, type=click.Choice(LOG_LEVELS), help="Least severe log messages shown on stderr (the stats line at exit is info; spawned servers default to warning).")
 def serve(
     host: str,
     port: int,
@@ -50,12 +56,14 @@ def serve(
     key_file: str | None,
     max_seconds: float | None,
     parent_pid: int | None,
+    log_level: str,
 ) -> None:
     """Run a simulator server: one world, lockstep over UDP.
 
     Prints 'vacc-server listening on HOST:PORT' once bound, then serves until
     interrupted. Counters of served and rejected datagrams are printed at exit.
     """
+    logging.basicConfig(stream=sys.stderr, level=log_level.upper(), format="%(message)s")
     key = None
     if key_file is not None:
         try:
@@ -94,4 +102,4 @@ def serve(
         except KeyboardInterrupt:
             pass
         finally:
-            click.echo(f"vacc-server stats: {server.stats_line()}", err=True)
+            log.info("vacc-server stats: %s", server.stats_line())

@@ -9,6 +9,7 @@ byte-identical to a clean run.
 
 from __future__ import annotations
 
+import os
 import re
 import select
 import socket
@@ -192,7 +193,8 @@ def test_keyed_run_under_20_percent_loss_is_byte_identical(clean_log, run_vacc, 
     clean, _ = clean_log
     log = tmp_path / "keyed-lossy.csv"
     faults = "drop=0.2,dup=0.1,reorder=0.1,delay=0.05,delay_s=0.01"
-    result = run_vacc("drive", "--controller", "acc", "--seed", "0", "--log", str(log), "--key-file", str(key_file), "--faults", faults + ",seed=31", "--server-faults", faults + ",seed=32", timeout=300)
+    env = dict(os.environ, VACC_SERVER_LOG_LEVEL="info")  # the spawned server's stats line
+    result = run_vacc("drive", "--controller", "acc", "--seed", "0", "--log", str(log), "--key-file", str(key_file), "--faults", faults + ",seed=31", "--server-faults", faults + ",seed=32", timeout=300, env=env)
     assert result.returncode == 0, result.stderr
     assert log.read_bytes() == clean.read_bytes()
     assert "rejected.ReplayError" in result.stderr  # duplicates are replays: dropped, harmless
