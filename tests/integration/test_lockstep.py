@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 import signal
 import socket
 import subprocess
@@ -46,6 +47,7 @@ def test_packet_loss_duplication_and_reordering_give_identical_log(clean_log, tm
     result = run_vacc(
         "drive", "--controller", "acc", "--seed", "0", "--log", str(lossy),
         "--faults", faults + ",seed=11", "--server-faults", faults + ",seed=12",
+        env=dict(os.environ, VACC_SERVER_LOG_LEVEL="info"),  # the spawned server's stats line
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     resent = int(result.stdout.split("re-sent requests")[1].split()[0])
