@@ -123,10 +123,14 @@ def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:
     return {"bytes_per_transition": memory.nbytes / capacity, "frame_bytes": float(FRAME_H * FRAME_W)}
 
 
+# The recipe of models/ice-gap.pt (docs/training.md), evaluated every 20 k steps instead of
+# 10 k: evaluations draw nothing from the run's RNG, so the training is the same, and the
+# evaluation that first meets the target (220 k) is on both grids. Set speed 80 m/s: the
+# simulator as it was when that model was trained (the limiter never binds).
 ICE_GAP = Config(
     reward="gap", scenario="ice", total_steps=300_000, train_every=8, n_step=5, target_sync_every=1000,
-    exploration_steps=30_000, eval_every=10_000, zoom=2, seed=1,
-)  # the command of docs/training.md that trains models/ice-gap.pt
+    exploration_steps=30_000, eval_every=20_000, zoom=2, seed=1, set_speed=80.0,
+)
 TARGET_RMSE = 3.4  # [m] ice-gap's target: gap RMSE to 55 m on each test trajectory
 
 
