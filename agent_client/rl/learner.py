@@ -179,6 +179,7 @@ class Learner:
         self._pending_scalars: list[tuple[str, float, int]] = []
         (self.run_dir / "config.json").write_text(json.dumps(config_dict(cfg), indent=2) + "\n")
         self.log = ScalarLog(self.run_dir, resume_step=self.saved.get("global_step") if resume else None)
+        self.log.text("config", "```\n" + json.dumps(config_dict(cfg), indent=2) + "\n```")  # markdown in TensorBoard
         self.last_eval: list[dict[str, Any]] = []
         self._eval_env: Any = None
 

@@ -10,6 +10,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 __all__ = ["ScalarLog", "Progress"]
 
@@ -43,6 +44,16 @@ class ScalarLog:
         self._csv.writerow([step, name, f"{value:.6g}", f"{time.time() - self._t0:.1f}"])
         if self._tb is not None:
             self._tb.add_scalar(name, value, step)
+
+    def text(self, name: str, text: str) -> None:
+        """A text summary (TensorBoard only), e.g. the run's hyperparameters."""
+        if self._tb is not None:
+            self._tb.add_text(name, text)
+
+    def frames(self, name: str, frames: Any, step: int) -> None:
+        """Camera frames ``[N, H, W]`` uint8 as images (TensorBoard only)."""
+        if self._tb is not None:
+            self._tb.add_images(name, frames[:, None], step, dataformats="NCHW")
 
     def flush(self) -> None:
         self._file.flush()

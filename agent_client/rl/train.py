@@ -143,6 +143,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
         while state.global_step < cfg.total_steps:
             obs, _ = env.reset(options={"seed": int(rng.integers(2**31))})
             memory.start(obs)
+            if state.episodes == 0:  # what the network sees, once
+                log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
             while not done and state.global_step < cfg.total_steps and not STOP.is_set():
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)

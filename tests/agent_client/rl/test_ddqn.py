@@ -367,3 +367,18 @@ def test_config_rejects_bad_values():
         Config(reward="speed")
     with pytest.raises(ValueError, match="scenario"):
         Config(scenario="moon")
+
+
+def test_tensorboard_gets_the_config_and_the_first_frames(tmp_path):
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from agent_client.rl.scalars import ScalarLog
+
+    log = ScalarLog(tmp_path)
+    log.text("config", "```\n{}\n```")
+    log.frames("charts/first_observation", np.zeros((8, FRAME_H, FRAME_W), np.uint8), 0)
+    log.close()
+    events = EventAccumulator(str(tmp_path))
+    events.Reload()
+    assert events.Tags()["images"] == ["charts/first_observation"] and "config/text_summary" in events.Tags()["tensors"]
