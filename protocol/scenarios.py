@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from protocol.codec import MAX_ARRAY_LEN
 from protocol.constants import A_MIN
 
 __all__ = [
@@ -38,6 +39,9 @@ __all__ = [
     "GAP_LIMIT",
     "TRACE_SPEED_MAX",
     "TRACE_ACCEL_LIMIT",
+    "TRACE_MAX_SAMPLES",
+    "TRACE_MAX_SPAN",
+    "check_trace_size",
     "BRAKE_LIMIT",
     "REACTION_TIME",
     "STOP_MARGIN",
@@ -60,12 +64,29 @@ GAP_LIMIT = 300.0  # [m] an episode terminates beyond this gap (paper Sec. 3)
 
 # Physical sanity limits of a user's lead trace; it is driven as given inside them.
 TRACE_SPEED_MAX = 70.0  # [m/s] 252 km/h
+# A trace's size: as many samples as one wire array holds, over at most 4 h (the server
+# resamples it at the physics rate: 720,000 steps at most).
+TRACE_MAX_SAMPLES = MAX_ARRAY_LEN
+TRACE_MAX_SPAN = 14_400.0  # [s]
 TRACE_ACCEL_LIMIT = 9.81  # [m/s^2] 1 g either way: beyond tyre grip of a road car
 
 # What "stopping is physically possible" means for the scenarios below.
 BRAKE_LIMIT = -A_MIN  # [m/s^2] the host's full-brake deceleration (u = -1)
 REACTION_TIME = 0.1  # [s] one control period before the first brake command acts
 STOP_MARGIN = 2.0  # [m] gap left at standstill (the safety suite's minimum gap)
+
+
+def check_trace_size(samples: int, span: float) -> None:
+    """A lead trace's sample count and time span [s] against :data:`TRACE_MAX_SAMPLES` and
+    :data:`TRACE_MAX_SPAN`.
+
+    Raises:
+        ValueError: one line naming the limit broken.
+    """
+    if samples > TRACE_MAX_SAMPLES:
+        raise ValueError(f"a trace holds at most {TRACE_MAX_SAMPLES} samples; this one has {samples}")
+    if not span <= TRACE_MAX_SPAN:
+        raise ValueError(f"a trace spans at most {TRACE_MAX_SPAN:g} s (4 h); this one spans {span:g} s")
 
 
 def stopping_gap(closing_speed: float) -> float:

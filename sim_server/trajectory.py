@@ -26,6 +26,7 @@ from protocol.scenarios import (
     TRACE_ACCEL_LIMIT,
     TRACE_SPEED_MAX,
     TRAJECTORIES,
+    check_trace_size,
 )
 from sim_server.errors import ScenarioError, TrajectoryError
 
@@ -200,6 +201,10 @@ def user_trace(t_s: np.ndarray, v: np.ndarray, dt: float) -> np.ndarray:
         TrajectoryError: one line naming the first bad sample and the limit.
     """
     t_s, v = _check_trace(t_s, v)
+    try:
+        check_trace_size(len(t_s), float(t_s[-1] - t_s[0]))  # before resampling it at dt
+    except ValueError as exc:
+        raise TrajectoryError(str(exc)) from None
     bad = np.flatnonzero(v > TRACE_SPEED_MAX)
     if bad.size:
         raise TrajectoryError(f"trace sample {bad[0]} has speed {v[bad[0]]:g} m/s, above the {TRACE_SPEED_MAX:g} m/s limit")

@@ -83,3 +83,18 @@ def test_csv_a_car_cannot_drive_is_refused(tmp_path):
     assert result.exit_code != 0
     assert "trace samples 0-1 accelerate at -20 m/s^2, beyond the physical limit of +-9.81 m/s^2 (1 g)" in result.output
     assert "Traceback" not in result.output
+
+
+def test_csv_over_the_trace_limits_is_refused_before_any_server(tmp_path):
+    from protocol.scenarios import TRACE_MAX_SAMPLES
+
+    long = tmp_path / "long.csv"
+    long.write_text("t_s,speed_mps\n0,10\n1e12,10\n")
+    result = _run("--controller", "acc", "--trajectory", str(long), "--log", str(tmp_path / "x.csv"))
+    assert result.exit_code != 0 and "a trace spans at most 14400 s (4 h); this one spans 1e+12 s" in result.output
+    many = tmp_path / "many.csv"
+    with many.open("w") as f:  # one sample over the limit, and far more rows after it
+        f.write("t_s,speed_mps\n" + "".join(f"{i * 0.01},10\n" for i in range(TRACE_MAX_SAMPLES + 1000)))
+    result = _run("--controller", "acc", "--trajectory", str(many), "--log", str(tmp_path / "x.csv"))
+    assert result.exit_code != 0 and f"many.csv:{TRACE_MAX_SAMPLES + 2}: a trace holds at most {TRACE_MAX_SAMPLES} samples" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "x.csv").exists()

@@ -10,6 +10,7 @@ from protocol.scenarios import (
     LEAD_SCENARIOS,
     STOP_MARGIN,
     TRACE_ACCEL_LIMIT,
+    TRACE_MAX_SAMPLES,
     stopping_gap,
 )
 from sim_server import scenarios as S
@@ -167,6 +168,21 @@ def test_trace_a_car_cannot_drive_is_refused_in_one_line(t, v, words):
     with pytest.raises(TrajectoryError, match=words.replace("+", r"\+").replace("^", r"\^")) as err:
         World().reset("ev", 0, "trace", trace=(np.array(t), np.array(v)))
     assert "\n" not in str(err.value)
+
+
+def test_a_trace_too_long_or_too_many_samples_is_refused_before_resampling():
+    import resource
+    import time
+
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    with pytest.raises(TrajectoryError, match="a trace spans at most 14400 s"):
+        World().reset("ice", 0, "trace", trace=(np.array([0.0, 1e12]), np.array([10.0, 10.0])))
+    n = TRACE_MAX_SAMPLES + 1
+    with pytest.raises(TrajectoryError, match=f"at most {TRACE_MAX_SAMPLES} samples; this one has {n}"):
+        World().reset("ice", 0, "trace", trace=(np.arange(n, dtype=float), np.full(n, 10.0)))
+    assert time.perf_counter() - t0 < 1.0  # the 1e12 s span was never resampled
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss < 10_000  # [KiB]: < 10 MB
 
 
 # -- initial conditions and set speed ----------------------------------------
