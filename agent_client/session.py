@@ -31,7 +31,7 @@ from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
 from protocol import messages as m
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES
-from protocol.transport import Endpoint
+from protocol.transport import Endpoint, is_loopback
 
 __all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
 
@@ -87,7 +87,7 @@ class Session:
         self.max_datagram = max_datagram
         family = socket.AF_INET6 if ":" in self.server[0] else socket.AF_INET
         sock = socket.socket(family, socket.SOCK_DGRAM)
-        loopback = self.server[0].startswith("127.") or self.server[0] == "::1"
+        loopback = is_loopback(self.server[0])
         # Bind loopback for a loopback server, so nothing listens on the network.
         sock.bind((self.server[0] if loopback else "", 0))
         sock.connect(self.server)  # the kernel then drops datagrams from anyone else

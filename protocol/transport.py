@@ -9,6 +9,7 @@ count charged to its sender's decode budget before msgpack allocates anything.
 
 from __future__ import annotations
 
+import ipaddress
 import socket
 import time
 from collections import Counter, OrderedDict
@@ -30,7 +31,7 @@ from protocol.fragment import (
     pad,
 )
 
-__all__ = ["Endpoint", "Received", "DecodeBudget", "SOCKET_BUFFER_BYTES"]
+__all__ = ["Endpoint", "Received", "DecodeBudget", "SOCKET_BUFFER_BYTES", "is_loopback"]
 
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024  # [bytes] room for a few full-size images in flight
 DECODE_RATE = 4 * MAX_OBJECTS  # [objects/s] one peer's decode budget (~60 ms of CPU a second)
@@ -38,6 +39,19 @@ DECODE_BURST = 2 * MAX_OBJECTS  # [objects] its bucket: two of the largest messa
 MAX_BUDGET_PEERS = 1024  # peers whose budgets are remembered
 
 Address = Any  # (host, port) as the socket module gives it
+
+
+def is_loopback(host: str) -> bool:
+    """Whether every address ``host`` resolves to is a loopback one (127.0.0.0/8, ::1).
+
+    A name is resolved, not read: "127.example.com" may point anywhere. A name that does
+    not resolve is not loopback.
+    """
+    try:
+        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_UDP)
+    except (socket.gaierror, UnicodeError, ValueError):
+        return False
+    return bool(infos) and all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
 
 
 @dataclass

@@ -12,7 +12,8 @@ from protocol.auth import load_key
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
-from sim_server.server import LOOPBACK_HOSTS, ServerConfig, SimServer
+from protocol.transport import is_loopback
+from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
 
 
@@ -70,7 +71,7 @@ def serve(
             key = load_key(key_file)
         except KeyFileError as exc:
             raise click.BadParameter(str(exc), param_hint="--key-file") from None
-    if host not in LOOPBACK_HOSTS and not host.startswith("127."):
+    if not is_loopback(host):
         if not allow_remote:
             raise click.UsageError(f"--host {host} is not a loopback address; pass --allow-remote to bind it")
         if key is None:

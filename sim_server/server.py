@@ -34,9 +34,8 @@ from protocol.transport import Endpoint
 from sim_server.errors import SimError
 from sim_server.world import World, WorldConfig, WorldState
 
-__all__ = ["ServerConfig", "SimServer", "LOOPBACK_HOSTS"]
+__all__ = ["ServerConfig", "SimServer"]
 
-LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
 
 
 @dataclass(frozen=True)
