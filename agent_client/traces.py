@@ -24,7 +24,7 @@ def load_trace(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     t: list[float] = []
     v: list[float] = []
     try:
-        with path.open(encoding="utf-8", newline="") as f:  # streamed: a huge file stops at the limit
+        with path.open(encoding="utf-8-sig", newline="") as f:  # -sig: a BOM is not part of the header  # streamed: a huge file stops at the limit
             rows = csv.reader(f)
             header = next(rows, [])
             if [c.strip() for c in header[:2]] != ["t_s", "speed_mps"]:

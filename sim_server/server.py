@@ -264,9 +264,12 @@ class SimServer:
             if msg["trace_t"] is None or msg["trace_v"] is None:
                 self._send_error(addr, ErrorCode.BAD_RESET, "trajectory 'trace' needs trace_t and trace_v", episode=episode)
                 return
+            numbers = all(type(x) in (int, float) for x in (*msg["trace_t"], *msg["trace_v"]))  # not bool, not str
             try:
+                if not numbers:
+                    raise TypeError
                 trace = (np.asarray(msg["trace_t"], dtype=float), np.asarray(msg["trace_v"], dtype=float))
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 self._send_error(addr, ErrorCode.BAD_RESET, "trace_t and trace_v must be arrays of numbers", episode=episode)
                 return
         duration = msg["duration"]

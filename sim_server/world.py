@@ -161,8 +161,8 @@ class World:
         gap0 = gap0 if gap is None else float(gap)
         self.set_speed = v_set
         steps = len(self.v_lead_profile) - 1
-        if duration is not None:
-            steps = min(steps, int(round(duration / cfg.physics_dt)))
+        if duration is not None and duration < steps * cfg.physics_dt:  # longer: the whole trajectory (1e308 too)
+            steps = int(round(duration / cfg.physics_dt))
         self.last_frame = steps // cfg.substeps
         self.scenario, self.seed = scenario, seed
         if cfg.randomize_light and (trajectory == "random" or trajectory in LEAD_SCENARIOS):

@@ -15,15 +15,36 @@ from typing import Any
 __all__ = ["ScalarLog", "Progress"]
 
 
+def _rows_up_to(path: Path, step: int) -> list[list[str]]:
+    """The rows of ``scalars.csv`` at or before ``step``.
+
+    Raises:
+        InputFileError: a row that is not ``step,name,value,wall_s`` (one line naming it).
+    """
+    from agent_client.errors import InputFileError
+
+    kept = []
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            for line, row in enumerate(csv.reader(f), start=1):
+                if line == 1 or not row:
+                    continue
+                if len(row) != 4 or not row[0].isdigit():
+                    raise InputFileError(f"{path}:{line}: not a step,name,value,wall_s row; move the file aside to resume")
+                if int(row[0]) <= step:
+                    kept.append(row)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}); move the file aside to resume") from None
+    return kept
+
+
 class ScalarLog:
     """``scalars.csv`` (``step,name,value,wall_s``), plus TensorBoard if installed."""
 
     def __init__(self, run_dir: Path, resume_step: int | None = None):
         path = run_dir / "scalars.csv"
         if resume_step is not None and path.exists():  # drop rows the resumed run will redo
-            with open(path, newline="") as f:
-                rows = [r for r in csv.reader(f)][1:]
-            kept = [r for r in rows if r and int(r[0]) <= resume_step]
+            kept = _rows_up_to(path, resume_step)
             with open(path, "w", newline="") as f:
                 csv.writer(f).writerows([["step", "name", "value", "wall_s"], *kept])
             self._file = open(path, "a", newline="")

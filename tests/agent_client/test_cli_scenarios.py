@@ -98,3 +98,23 @@ def test_csv_over_the_trace_limits_is_refused_before_any_server(tmp_path):
     result = _run("--controller", "acc", "--trajectory", str(many), "--log", str(tmp_path / "x.csv"))
     assert result.exit_code != 0 and f"many.csv:{TRACE_MAX_SAMPLES + 2}: a trace holds at most {TRACE_MAX_SAMPLES} samples" in result.output
     assert "Traceback" not in result.output and not (tmp_path / "x.csv").exists()
+
+
+def test_csv_encodings_bom_read_utf16_refused_in_one_line(tmp_path):
+    from agent_client.errors import InputFileError
+    from agent_client.traces import load_trace
+
+    bom = tmp_path / "bom.csv"
+    bom.write_text("t_s,speed_mps\n0,10\n10,12\n", encoding="utf-8-sig")
+    t, v = load_trace(bom)
+    assert list(t) == [0.0, 10.0] and list(v) == [10.0, 12.0]
+    wide = tmp_path / "wide.csv"
+    wide.write_text("t_s,speed_mps\n0,10\n10,12\n", encoding="utf-16")
+    with pytest.raises(InputFileError, match="wide.csv") as info:
+        load_trace(wide)
+    assert "\n" not in str(info.value)
+    huge = tmp_path / "huge.csv"
+    huge.write_text("t_s,speed_mps\n0," + "1" * (200 * 1024) + "\n")
+    with pytest.raises(InputFileError, match="huge.csv") as info:
+        load_trace(huge)
+    assert "\n" not in str(info.value)

@@ -238,3 +238,22 @@ def test_spawned_server_exits_when_its_client_is_killed(tmp_path):
                 time.sleep(0.2)
         else:
             pytest.fail(f"orphaned server still holds port {port}")
+
+
+@pytest.mark.parametrize(
+    ("trace_t", "trace_v", "words"),
+    [
+        ([0.0, 1e300], [10.0, 10.0], "a trace spans at most 14400 s"),
+        ([0.0, float(2**63 - 1)], [10.0, 10.0], "a trace spans at most 14400 s"),
+        ([0.0, 1.0], [True, False], "trace_t and trace_v must be arrays of numbers"),
+        (["0", "1"], [10.0, 10.0], "trace_t and trace_v must be arrays of numbers"),
+    ],
+)
+def test_well_formed_but_bad_traces_get_bad_reset_not_internal(server, trace_t, trace_v, words):
+    with Session(server) as s:
+        s.episode += 1
+        msg = {"type": "reset", "session": s.token, "episode": s.episode, "scenario": "ice", "seed": 0, "trajectory": "trace",
+               "trace_t": trace_t, "trace_v": trace_v, "duration": None, "host_speed": None, "gap": None, "set_speed": None}  # fmt: skip
+        with pytest.raises(SessionError, match=f"BAD_RESET.*{words}"):
+            s._request(msg, lambda r: r["type"] == "obs", "reset", error_match=lambda e: True)
+        assert s.reset(seed=1, duration=1e308)["frame"] == 0  # a huge duration: the whole trajectory, no OverflowError

@@ -382,3 +382,12 @@ def test_tensorboard_gets_the_config_and_the_first_frames(tmp_path):
     events = EventAccumulator(str(tmp_path))
     events.Reload()
     assert events.Tags()["images"] == ["charts/first_observation"] and "config/text_summary" in events.Tags()["tensors"]
+
+
+def test_a_garbage_scalars_csv_fails_a_resume_in_one_line(tmp_path):
+    from agent_client.rl.scalars import ScalarLog
+
+    (tmp_path / "scalars.csv").write_text("step,name,value,wall_s\n5,charts/x,1,0.1\n\x00\x01garbage\n")
+    with pytest.raises(InputFileError, match=r"scalars.csv:3: not a step,name,value,wall_s row") as info:
+        ScalarLog(tmp_path, resume_step=10)
+    assert "\n" not in str(info.value)
