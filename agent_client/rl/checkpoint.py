@@ -15,7 +15,8 @@ A checkpoint is a ``torch.save`` dict::
     rng      generator states by name, torch's and python's
     replay   the replay file names that go with it
 
-Every write is atomic (a temporary file, then ``os.replace``). A failed write (a full
+Every write is atomic and durable (a temporary file, fsynced, then ``os.replace``, then
+the folder fsynced). A failed write (a full
 disk) removes its temporary file and raises :class:`CheckpointWriteError`, one line;
 the previous checkpoint is untouched.
 """
@@ -103,12 +104,22 @@ def write_atomically(path: Path, write: Any) -> None:
     tmp = path.with_name(path.name + ".tmp")
     try:
         write(tmp)
+        _fsync(tmp)  # the bytes on disk before the name points at them: a power loss leaves the old file
         os.replace(tmp, path)
+        _fsync(path.parent)  # and the rename itself
     except (OSError, RuntimeError) as exc:  # torch.save wraps ENOSPC in a RuntimeError
         tmp.unlink(missing_ok=True)
         full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc)
         cause = "the disk is full" if full else f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ''}"
         raise CheckpointWriteError(f"{path}: could not be written ({cause}); the previous file is kept") from None
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
