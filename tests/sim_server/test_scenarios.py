@@ -209,8 +209,8 @@ def test_host_speed_and_gap_override_only_the_start(trajectory):
         ({"host_speed": float("nan")}, "host speed nan m/s"),
         ({"gap": 0.0}, "gap 0.0 m is outside (0, 300) m"),
         ({"gap": 300.0}, "gap 300.0 m is outside"),
-        ({"set_speed": 0.0}, "set speed 0.0 m/s is outside 1..50 m/s"),
-        ({"set_speed": 60.0}, "set speed 60.0 m/s"),
+        ({"set_speed": 0.0}, "set speed 0.0 m/s is outside 1..80 m/s"),
+        ({"set_speed": 90.0}, "set speed 90.0 m/s"),
         ({"set_speed": float("inf")}, "set speed inf m/s"),
     ],
 )
