@@ -53,7 +53,7 @@ def option_name(field: str) -> str:
 
 def _option(f: dataclasses.Field[Any]) -> Callable[[Any], Any]:
     """The click option of one Config field."""
-    name, default, kind = f.name, f.default, str(f.type)
+    name, default, kind = f.name, getattr(Config(), f.name), str(f.type)  # every field has a default
     common: dict[str, Any] = {"help": field_docs().get(name, ""), "show_default": name not in REQUIRED}
     if name in REQUIRED:
         common.update(required=True, show_default=False)
@@ -93,7 +93,7 @@ def make_config(values: dict[str, Any]) -> Config:
     for f in dataclasses.fields(Config):
         v = values[f.name]
         if f.name in CHOICES:
-            v = type(f.default)(v) if not isinstance(f.default, str) else v
+            v = type(getattr(Config(), f.name))(v)  # "2" -> 2 for --zoom
         elif str(f.type).startswith("tuple"):
             v = tuple(t.strip() for t in v.split(",") if t.strip())
         elif str(f.type) == "float | None" and v is not None and v <= 0:
