@@ -93,18 +93,26 @@ def sample_latency(capacity: int = 100_000, repeats: int = 300) -> dict[str, flo
     return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90)), "capacity": capacity}
 
 
-def update_cost(repeats: int = 30) -> dict[str, float]:
+def update_cost(repeats: int = 30, memory: Any = None, torch_threads: int = Config.torch_threads) -> dict[str, float]:
     """Median [s] of thread CPU time (not wall: the machine is shared) of one batch-32
-    gradient step with 5-step returns, one torch thread, through :meth:`Learner.update`."""
+    gradient step with 5-step returns through :meth:`Learner.update`.
+
+    Args:
+        repeats: gradient steps timed (after 3 of warm-up).
+        memory: what to sample from (a ReplayMemory or StreamReplay); default a filled
+            5,000-slot memory.
+        torch_threads: torch threads of the update (the thread CPU time counts the
+            calling thread's share only).
+    """
     from agent_client.rl.learner import Learner
 
     rng = np.random.default_rng(0)
-    memory = _filled_memory(5_000, rng)
+    memory = _filled_memory(5_000, rng) if memory is None else memory
     threads = torch.get_num_threads()
     times = []
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            learner = Learner(Config(cuda=False, n_step=5), tmp)
+            learner = Learner(Config(cuda=False, n_step=5, torch_threads=torch_threads), tmp)
             for i in range(repeats + 3):
                 b = memory.sample(32, rng, 5, 0.99)
                 t0 = time.thread_time()
@@ -114,7 +122,7 @@ def update_cost(repeats: int = 30) -> dict[str, float]:
             learner.close()
     finally:
         torch.set_num_threads(threads)
-    return {"median_s": float(np.median(times))}
+    return {"median_s": float(np.median(times)), "torch_threads": torch_threads}
 
 
 def replay_bytes_per_transition(capacity: int = 100_000) -> dict[str, float]:

@@ -17,7 +17,6 @@ load hits every K alike; read the ratios.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import tempfile
@@ -25,12 +24,11 @@ import time
 from typing import Any
 
 import numpy as np
-import torch
 
+from agent_client.bench.ddqn import update_cost
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config
 from agent_client.rl.distributed import train_distributed
-from agent_client.rl.learner import Learner
 from agent_client.rl.replay import StreamReplay
 from agent_client.rl.train import train
 
@@ -128,21 +126,8 @@ def learner_costs(k: int = 4, capacity: int = 8_000, updates: int = 20) -> dict[
         t0 = time.process_time()
         replay.sample(32, rng, 5, 0.99)
         samples.append(time.process_time() - t0)
-    threads = torch.get_num_threads()
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            learner = Learner(dataclasses.replace(cfg, servers=1, cuda=False), tmp)  # one torch thread
-            times = []
-            for u in range(updates + 3):
-                b = replay.sample(32, rng, 5, 0.99)
-                t0 = time.process_time()
-                learner.update(b)
-                if u >= 3:
-                    times.append(time.process_time() - t0)
-            learner.close()
-    finally:
-        torch.set_num_threads(threads)
-    return {"insert_cpu_s_per_transition": insert, "sample_cpu_s": float(np.median(samples)), "update_cpu_s": float(np.median(times))}
+    update = update_cost(updates, memory=replay, torch_threads=1)["median_s"]
+    return {"insert_cpu_s_per_transition": insert, "sample_cpu_s": float(np.median(samples)), "update_cpu_s": update}
 
 
 def run(ks: tuple[int, ...] = (1, 2, 4), steps: int = 1500, reps: int = 2, learning: bool = False, use_ray: bool = False) -> dict[str, Any]:
