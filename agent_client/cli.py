@@ -34,11 +34,12 @@ from agent_client.launcher import local_server
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
 from protocol.auth import load_key
+from protocol.constants import CAMERA_SIZE
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
 
-LIVE_IMAGE = (400, 400)  # [px] camera size the live window asks for (shown scaled up)
+LIVE_IMAGE = CAMERA_SIZE  # [px] the live window asks for the full camera (shown scaled up)
 
 
 def parse_hostport(value: str) -> tuple[str, int]:

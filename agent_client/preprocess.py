@@ -44,6 +44,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from protocol.constants import CAMERA_SIZE
+
 __all__ = ["FRAME_H", "FRAME_W", "MASK", "MASKS", "ZOOMS", "camera_size", "preprocess", "preprocess_reference"]
 
 FRAME_H = 105  # [px] network input height
@@ -74,7 +76,8 @@ COL0_400 = (400 - FRAME_W) // 2  # 125
 def camera_size(zoom: int) -> tuple[int, int]:
     """The gray camera frame ``(width, height)`` [px] to ask the server for at ``zoom``."""
     _check_zoom(zoom)
-    return (200, 200) if zoom == 1 else (400, 400)
+    full = CAMERA_SIZE
+    return (full[0] // 2, full[1] // 2) if zoom == 1 else full  # zoom 1: the paper's halved camera
 
 
 def _check_zoom(zoom: int) -> None:

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from protocol.constants import CAMERA_SIZE
 from sim_server import scenery as sc
 from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, SceneState
 
@@ -81,8 +82,8 @@ class CameraConfig:
         far: objects beyond this distance are not drawn [m].
     """
 
-    width: int = 400  # [px]
-    height: int = 400  # [px]
+    width: int = CAMERA_SIZE[0]  # [px]
+    height: int = CAMERA_SIZE[1]  # [px]
     mount_height: float = 1.4  # [m]
     pitch: float = 0.0  # [rad]
     hfov: float = math.pi / 4  # [rad]
