@@ -13,6 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 from agent_client import preprocess as pre
+from agent_client.actions import ACTION_TYPES, make_action_type
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
 from agent_client.rewards import REWARDS, make_reward
@@ -31,16 +32,21 @@ class VisionACCEnv(gym.Env):
     """Follow a lead car from a front camera, over a UDP lockstep session.
 
     ## Action space
-    ``Discrete(21)``: action ``a`` applies the normalised force ``u = -1 + 0.1 a``
-    for one control period (0.1 s by default); u = -1 brakes at 5.5 m/s², u = +1
-    accelerates at 3.5 m/s².
+    ``action="levels"`` (the paper): ``Discrete(21)``, action ``a`` applies the
+    normalised force ``u = -1 + 0.1 a`` for one control period (0.1 s by default);
+    u = -1 brakes at 5.5 m/s², u = +1 accelerates at 3.5 m/s².
+    ``action="steps"``: ``Discrete(6)``, action ``a`` adds
+    :data:`agent_client.actions.FORCE_STEPS` ``[a]`` to the force held since the last
+    step (0 at the start), so the policy cannot jerk by accident.
 
     ## Observation space
     ``Dict(frames=Box(0, 255, (8, 105, 150), uint8), speeds=Box(0, 60, (8,), float32))``:
     the last 8 preprocessed camera frames (oldest first, ``stack_stride`` control
-    steps apart) and the host speeds [m/s] at those frames. The gap, the lead's
-    speed and every other privileged quantity are never in the observation; they
-    are in ``info`` for logging and feed only the reward.
+    steps apart) and the host speeds [m/s] at those frames. With ``action="steps"``,
+    also ``controls=Box((8, 2), float32)``: at each stacked frame the force then held
+    (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
+    The gap, the lead's speed and every other privileged quantity are never in the
+    observation; they are in ``info`` for logging and feed only the reward.
 
     ## Rewards
     Table 1 of the paper (:mod:`agent_client.rewards`): ``reward="gap"`` or
@@ -96,7 +102,10 @@ class VisionACCEnv(gym.Env):
         zoom: int = 1,
         set_speed: float | None = None,
         key_file: str | None = None,
+        action: str = "levels",
     ):
+        if action not in ACTION_TYPES:
+            raise ValueError(f"action {action!r} is not one of {ACTION_TYPES}")
         check_trajectory(trajectory)
         check_initial(host_speed=None, gap=None, set_speed=set_speed)
         if reward not in REWARDS:
@@ -114,13 +123,15 @@ class VisionACCEnv(gym.Env):
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self.episode_seconds = episode_seconds
         self.render_mode = render_mode
-        self.action_space = spaces.Discrete(N_ACTIONS)
-        self.observation_space = spaces.Dict(
-            {
-                "frames": spaces.Box(0, 255, (frame_stack, pre.FRAME_H, pre.FRAME_W), np.uint8),
-                "speeds": spaces.Box(0.0, MAX_SPEED, (frame_stack,), np.float32),
-            }
-        )
+        self.actions = make_action_type(action)
+        self.action_space = spaces.Discrete(self.actions.n)
+        observed: dict[str, spaces.Space[Any]] = {
+            "frames": spaces.Box(0, 255, (frame_stack, pre.FRAME_H, pre.FRAME_W), np.uint8),
+            "speeds": spaces.Box(0.0, MAX_SPEED, (frame_stack,), np.float32),
+        }
+        if self.actions.n_controls:
+            observed["controls"] = spaces.Box(-np.inf, np.inf, (frame_stack, self.actions.n_controls), np.float32)
+        self.observation_space = spaces.Dict(observed)
         self._stack = contextlib.ExitStack()
         # key_file: the shared key of a remote server (vacc serve --key-file); a spawned one gets it too.
         key = load_key(key_file) if key_file is not None else None
@@ -136,7 +147,8 @@ class VisionACCEnv(gym.Env):
         if image is None:  # the session asked for gray frames; a server that drops them is broken
             raise FatalSessionError("the server sent an observation without a camera image")
         self._last_image = image
-        return self._stacker.push(pre.preprocess(image, self.zoom), obs["v_host"])
+        controls = self.actions.controls(float(obs["set_speed"])) if self.actions.n_controls else None
+        return self._stacker.push(pre.preprocess(image, self.zoom), obs["v_host"], controls)
 
     @staticmethod
     def _info(obs: dict[str, Any]) -> dict[str, Any]:
@@ -164,6 +176,7 @@ class VisionACCEnv(gym.Env):
             set_speed=set_speed,
         )
         self._stacker.reset()
+        self.actions.reset()
         self._a_prev = float(obs.get("accel", 0.0))
         info = self._info(obs)
         info["seed"] = episode_seed
@@ -172,7 +185,7 @@ class VisionACCEnv(gym.Env):
     def step(self, action):
         if not self.action_space.contains(action):
             raise ValueError(f"action {action!r} is not in {self.action_space}")
-        u = float(FORCES[int(action)])
+        u = self.actions.force(int(action))
         obs = self.session.step(u)
         a = float(obs["accel"])
         reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev)

@@ -13,7 +13,10 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
 * ``gap`` reward = r_gap / 10, in [-1, 1].
 * ``force`` reward = (r_gap + r_force) / 20, in [-0.5, 1]: the sum, normalised
   by its largest magnitude so it stays in [-1, 1].
-* ``eco`` reward (beyond the paper, its first item of future work): the gap term, minus
+* ``eco`` reward (beyond the paper, its first item of future work): the gap term around a
+  speed-dependent desired gap (:func:`eco_desired_gap`: 55 m from 27.5 m/s up, a 2 s time
+  gap below it, 5 m at a standstill, so that stopping behind a stopped car earns the
+  reward's peak instead of a penalty for ever), minus
   the instantaneous energy of the host (CMEM fuel rate for the ICE car, the eq. 6 battery
   power for the EV, each over its full-throttle value at 30 m/s), minus a comfort term
   (the jerk over one control period, over 4x ISO 15622's 2.5 m/s^3), weighted by
@@ -33,12 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from agent_client.controllers.acc import AccController
 from energy.cmem import COROLLA_2022, cmem_rates
 from energy.comfort import ISO_JERK_LIMIT_MPS3
 from energy.ev import eq6_power_kw
+from protocol.constants import DESIRED_GAP
 
 __all__ = [
-    "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "gap_term", "force_term", "energy_term", "comfort_term",
+    "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
     "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
 ]  # fmt: skip
 
@@ -49,9 +54,23 @@ _GX = np.array([p[0] for p in GAP_POINTS])
 _GY = np.array([p[1] for p in GAP_POINTS])
 
 
-def gap_term(gap: float) -> float:
-    """Raw Table 1 gap reward for a gap [m]; -10 at or below contact."""
-    return float(np.interp(gap, _GX, _GY))
+def gap_term(gap: float, desired: float = DESIRED_GAP) -> float:
+    """Raw Table 1 gap reward for a gap [m]; -10 at or below contact.
+
+    ``desired`` [m] moves the peak: the points below it scale with it (the zero at
+    30/55 of it), those above shift with it (the zero 25 m beyond it); at 55 m, Table 1.
+    """
+    if desired == DESIRED_GAP:
+        return float(np.interp(gap, _GX, _GY))
+    shift = desired - DESIRED_GAP
+    x = np.where(_GX <= DESIRED_GAP, _GX * desired / DESIRED_GAP, _GX + shift)
+    return float(np.interp(gap, x, _GY))
+
+
+def eco_desired_gap(v_host: float) -> float:
+    """The eco reward's desired gap [m] at host speed [m/s]: a constant time gap of
+    :data:`ECO_TIME_GAP`, at least the ACC's standstill distance, at most the paper's 55 m."""
+    return float(min(DESIRED_GAP, max(AccController.d_safe, ECO_TIME_GAP * v_host)))
 
 
 def force_term(u: float) -> float:
@@ -65,6 +84,7 @@ JERK_FULL = 4.0 * ISO_JERK_LIMIT_MPS3  # [m/s^3] the comfort term's full scale
 CONTROL_PERIOD = 0.1  # [s] the simulator's default decision period
 # Initial weights (gap, energy, comfort); not yet tuned by an ablation (docs/training.md).
 ECO_WEIGHTS = (1.0, 0.5, 0.25)
+ECO_TIME_GAP = 2.0  # [s] 55 m at 27.5 m/s, the ICE leads' lower band: the paper's target on its own roads
 
 
 def energy_term(v: float, a: float, scenario: str) -> float:
@@ -97,7 +117,7 @@ def force_reward(gap: float, u: float, **_: Any) -> float:
 def eco_reward(gap: float, u: float, *, v: float, a: float, a_prev: float, scenario: str = "ice", **_: Any) -> float:
     """Eco reward in [-1, 1]: gap term, minus energy, minus jerk (see the module docstring)."""
     w_gap, w_energy, w_comfort = ECO_WEIGHTS
-    total = w_gap * gap_term(gap) / 10.0 - w_energy * energy_term(v, a, scenario) - w_comfort * comfort_term(a, a_prev)
+    total = w_gap * gap_term(gap, eco_desired_gap(v)) / 10.0 - w_energy * energy_term(v, a, scenario) - w_comfort * comfort_term(a, a_prev)
     return total / (w_gap + w_energy + w_comfort)
 
 

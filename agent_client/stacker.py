@@ -31,24 +31,29 @@ class FrameStacker:
         if frame_stack < 1 or stack_stride < 1:
             raise ValueError("frame_stack and stack_stride must be >= 1")
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
-        self._history: deque[tuple[np.ndarray, float]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
+        self._history: deque[tuple[np.ndarray, float, np.ndarray | None]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
 
     def reset(self) -> None:
         """Forget the previous episode."""
         self._history.clear()
 
-    def push(self, frame: np.ndarray, v_host: float) -> dict[str, np.ndarray]:
-        """Add one preprocessed frame and its host speed [m/s]; return the observation.
+    def push(self, frame: np.ndarray, v_host: float, controls: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Add one preprocessed frame, its host speed [m/s] and, for action types that
+        observe them, its controls (:data:`agent_client.actions.CONTROLS`); return the observation.
 
         Returns:
             ``{"frames": uint8 (frame_stack, H, W), "speeds": float32 (frame_stack,)}``,
-            oldest first; speeds clipped to :data:`MAX_SPEED`.
+            oldest first; speeds clipped to :data:`MAX_SPEED`; and, if controls were
+            given, ``"controls": float32 (frame_stack, C)``.
         """
-        self._history.append((frame, v_host))
+        self._history.append((frame, v_host, controls))
         picks = list(self._history)[::-1][:: self.stack_stride][::-1]
         while len(picks) < self.frame_stack:  # episode start: repeat the oldest pick
             picks.insert(0, picks[0])
-        return {
-            "frames": np.stack([f for f, _ in picks]),
-            "speeds": np.array([min(v, MAX_SPEED) for _, v in picks], dtype=np.float32),
+        obs = {
+            "frames": np.stack([f for f, _, _ in picks]),
+            "speeds": np.array([min(v, MAX_SPEED) for _, v, _ in picks], dtype=np.float32),
         }
+        if controls is not None:
+            obs["controls"] = np.stack([c for _, _, c in picks if c is not None]).astype(np.float32, copy=False)
+        return obs

@@ -17,6 +17,7 @@ __all__ = [
     "FORCES",
     "DESIRED_GAP",
     "CAMERA_SIZE",
+    "MIN_GAP",
 ]
 
 A_MIN = -5.5  # [m/s^2] acceleration at u = -1 (full brake), paper Sec. 4
@@ -28,3 +29,4 @@ FORCES = np.asarray(FORCE_LEVELS)  # the same levels as an array: FORCES[a] is a
 FORCES.setflags(write=False)
 DESIRED_GAP = 55.0  # [m] the paper's desired gap: the gap reward's peak and the RMSE target
 CAMERA_SIZE = (400, 400)  # [px] (width, height) of the full front camera
+MIN_GAP = 2.0  # [m] the smallest gap a safe run may reach: the safety suite's floor and best.pt's

@@ -17,11 +17,11 @@ from typing import Any
 import click
 import numpy as np
 
+from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS
 
 __all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
 
-MIN_GAP = 2.0  # [m] smallest gap a passing run may reach
 SPEED_MARGIN = 0.5  # [m/s] a passing run stays at or below the set speed plus this
 
 

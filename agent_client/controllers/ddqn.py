@@ -7,10 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import FORCES, QNetwork, greedy_action
+from agent_client.rl.network import QNetwork, greedy_action
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
@@ -22,7 +23,8 @@ class DDQNController:
     Keeps its own frame/speed stack with the env's :class:`FrameStacker`, so it sees
     exactly what the network saw in training, and decides through
     :func:`~agent_client.rl.network.greedy_action`, the trainer's own inference path.
-    Uses the camera image and the host speed of the observation only.
+    Uses the camera image and the host speed of the observation only, and, for the
+    "steps" action type, its own last force and the set speed the driver chose.
 
     Args:
         q: the Q-network.
@@ -34,6 +36,7 @@ class DDQNController:
     def __init__(self, q: QNetwork, cfg: Config):
         self.q, self.cfg = q.eval(), cfg
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
+        self.actions = make_action_type(cfg.action)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path) -> DDQNController:
@@ -45,12 +48,13 @@ class DDQNController:
         return cls(*load_policy(path))
 
     def reset(self) -> None:
-        """Forget the previous episode's frames."""
+        """Forget the previous episode's frames (and release the held force)."""
         self.stacker.reset()
+        self.actions.reset()
 
     def act(self, stacked: dict[str, np.ndarray]) -> int:
-        """Greedy action index for a stacked observation (frames + speeds only)."""
-        return greedy_action(self.q, stacked["frames"], stacked["speeds"])
+        """Greedy action index for a stacked observation (frames, speeds and, if observed, controls)."""
+        return greedy_action(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls"))
 
     def __call__(self, obs: dict[str, Any]) -> float:
         """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
@@ -59,5 +63,6 @@ class DDQNController:
         image = Session.image(obs)
         if image is None:
             raise ValueError("the ddqn controller needs camera images; open the session with image_format='gray'")
-        stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]))
-        return float(FORCES[self.act(stacked)])
+        controls = self.actions.controls(float(obs["set_speed"])) if self.actions.n_controls else None
+        stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
+        return self.actions.force(self.act(stacked))

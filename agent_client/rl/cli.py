@@ -21,6 +21,7 @@ from typing import Any
 
 import click
 
+from agent_client.actions import ACTION_TYPES
 from agent_client.errors import ClientError, InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
@@ -31,7 +32,9 @@ __all__ = ["train", "config_options"]
 
 OPTION_NAMES = {"total_steps": "steps", "torch_threads": "threads"}  # names kept from earlier releases
 REQUIRED = ("reward", "total_steps")
-CHOICES: dict[str, tuple[Any, ...]] = {"reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS}
+CHOICES: dict[str, tuple[Any, ...]] = {
+    "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
+}  # fmt: skip
 
 
 @lru_cache(maxsize=1)
@@ -99,8 +102,9 @@ def make_config(values: dict[str, Any]) -> Config:
         elif str(f.type) == "float | None" and v is not None and v <= 0:
             v = None  # 0: "none", e.g. whole trajectories
         kw[f.name] = v
-    if not kw["eval_trajectories"]:
-        raise click.BadParameter("give at least one trajectory", param_hint=option_name("eval_trajectories"))
+    for name in ("eval_trajectories", "train_trajectories"):
+        if not kw[name]:
+            raise click.BadParameter("give at least one trajectory", param_hint=option_name(name))
     try:
         return Config(**kw)
     except ConfigError as exc:

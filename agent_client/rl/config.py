@@ -10,10 +10,17 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from agent_client.actions import ACTION_TYPES
 from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rl.evaluation import eval_episode
-from protocol.scenarios import DEFAULT_SET_SPEED, SET_SPEED_RANGE, TEST_TRAJECTORIES
+from protocol.scenarios import (
+    DEFAULT_SET_SPEED,
+    LEAD_SCENARIOS,
+    RANDOM,
+    SET_SPEED_RANGE,
+    TEST_TRAJECTORIES,
+)
 
 __all__ = ["Config", "ConfigError", "SCHEDULES", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
@@ -25,7 +32,7 @@ SCHEDULES = ("parallel", "serial")
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
-LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1]}
+LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels"}
 
 
 class ConfigError(ValueError):
@@ -48,6 +55,13 @@ class Config:
     set_speed: float = DEFAULT_SET_SPEED
     """[m/s] cruise set speed of training and evaluation episodes: the host's speed limiter
     holds it (docs/scenarios.md). Runs from before the limiter are repeated with 80."""
+    action: str = "levels"
+    """Action type (agent_client/actions.py): "levels", the paper's 21 force levels; or "steps",
+    increments of a held force, fine near zero, with the force and the set speed observed."""
+    train_trajectories: tuple[str, ...] = ("random",)
+    """Comma-separated lead trajectories of training episodes, one drawn per episode (repeat a
+    name to weight it): "random" (the scenario's generator) and lead scenarios such as stopped,
+    brake-stop, catch-up (docs/scenarios.md); each with a fresh seed from the run's RNG."""
     total_steps: int = 200_000
     """Environment steps (control periods of 0.1 s) to train for, in total."""
     seed: int = 1
@@ -136,6 +150,15 @@ class Config:
             raise bad("reward", f"{self.reward!r} is not one of {sorted(REWARDS)}")
         if self.scenario not in ("ice", "ev"):
             raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
+        if self.action not in ACTION_TYPES:
+            raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
+        if self.action != "levels" and self.servers != 1:
+            raise bad("action", f"{self.action!r} needs servers=1 (the K-stream trainer stores no controls)")
+        if not self.train_trajectories:
+            raise bad("train_trajectories", "must name at least one trajectory")
+        for name in self.train_trajectories:
+            if name != RANDOM and name not in LEAD_SCENARIOS:
+                raise bad("train_trajectories", f"{name!r} is not {RANDOM!r} or a lead scenario ({', '.join(LEAD_SCENARIOS)})")
         if self.schedule not in SCHEDULES:
             raise bad("schedule", f"{self.schedule!r} is not one of {SCHEDULES}")
         for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every",
@@ -168,6 +191,7 @@ def config_dict(cfg: Config) -> dict[str, Any]:
     """The config as JSON-ready builtins (what ``config.json`` and checkpoints hold)."""
     d = dataclasses.asdict(cfg)
     d["eval_trajectories"] = list(cfg.eval_trajectories)
+    d["train_trajectories"] = list(cfg.train_trajectories)
     return d
 
 
@@ -183,8 +207,9 @@ def config_from(d: dict[str, Any], path: Any) -> Config:
     """
     names = {f.name for f in dataclasses.fields(Config)}
     known = {k: v for k, v in d.items() if k in names}
-    if "eval_trajectories" in known:
-        known["eval_trajectories"] = tuple(known["eval_trajectories"])
+    for name in ("eval_trajectories", "train_trajectories"):
+        if name in known:
+            known[name] = tuple(known[name])
     for name, value in LEGACY_VALUES.items():  # a config saved before the setting existed
         known.setdefault(name, value)
     try:

@@ -8,7 +8,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from protocol.constants import DESIRED_GAP
+from protocol.constants import DESIRED_GAP, MIN_GAP
 from protocol.scenarios import LEAD_SCENARIOS, RANDOM, TEST_TRAJECTORIES
 
 __all__ = ["eval_episode", "evaluate", "score", "EVAL_NAMES_HELP"]
@@ -87,7 +87,7 @@ def _episode(q: Any, env: Any, trajectory: str) -> dict[str, Any]:
     gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(greedy_action(q, obs["frames"], obs["speeds"]))
+        obs, _, terminated, truncated, info = env.step(greedy_action(q, obs["frames"], obs["speeds"], obs.get("controls")))
         gaps.append(info["gap"])
         collision = collision or bool(info["collision"])
         steps += 1
@@ -97,6 +97,7 @@ def _episode(q: Any, env: Any, trajectory: str) -> dict[str, Any]:
         "trajectory": trajectory,
         "gap_rmse_m": float(np.sqrt(np.mean((g - DESIRED_GAP) ** 2))),
         "collision": collision,
+        "min_gap_m": float(g.min()),
         "steps": steps,
         "reason": info["reason"],
     }
@@ -105,15 +106,18 @@ def _episode(q: Any, env: Any, trajectory: str) -> dict[str, Any]:
 def score(log: _Log, results: list[dict[str, Any]], step: int) -> float:
     """Write an evaluation's ``eval/`` scalars; return its score (lower is better).
 
-    Score: fewest failures (a collision, or losing the lead past 300 m), then the
-    worst trajectory's RMSE (the target is per trajectory).
+    Score: fewest failures (a collision, a gap under the safety suite's 2 m, or losing
+    the lead past 300 m), then the worst trajectory's RMSE (the target is per
+    trajectory). The 55 m RMSE counts only on the paper's trajectories (test-N,
+    random:S) when there are any: behind a stopped car 55 m is no target, only safety.
     """
-    rmse = [r["gap_rmse_m"] for r in results]
+    following = [r for r in results if eval_episode(r["trajectory"])[0] not in LEAD_SCENARIOS] or results
+    rmse = [r["gap_rmse_m"] for r in following]
     for r in results:
         log.add(f"eval/gap_rmse_m/{r['trajectory']}", r["gap_rmse_m"], step)
     log.add("eval/gap_rmse_m", max(rmse), step)
     log.add("eval/gap_rmse_mean_m", float(np.mean(rmse)), step)
     log.add("eval/collisions", sum(r["collision"] for r in results), step)
-    failures = sum(r["collision"] or r["reason"] not in ("end", "") for r in results)
+    failures = sum(r["collision"] or r.get("min_gap_m", MIN_GAP) < MIN_GAP or r["reason"] not in ("end", "") for r in results)
     log.add("eval/failures", failures, step)
     return 1e6 * failures + max(rmse)

@@ -38,7 +38,7 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import QNetwork, greedy_action
+from agent_client.rl.network import QNetwork, greedy_action, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 
@@ -196,8 +196,11 @@ class Learner:
         init_q, init_cfg = load_policy(cfg.init_from)
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
-        self.q.load_state_dict(init_q.state_dict())
-        self.target.load_state_dict(init_q.state_dict())
+        if init_cfg.action == cfg.action:
+            self.q.load_state_dict(init_q.state_dict())
+        else:  # another action set: keep its perception, learn a new output layer
+            transfer_weights(init_q, self.q)
+        self.target.load_state_dict(self.q.state_dict())
 
     def _resume(self) -> None:
         path = self.run_dir / "latest.pt"
@@ -240,7 +243,7 @@ class Learner:
 
     def act(self, obs: dict[str, np.ndarray]) -> int:
         """The greedy action of the acting network (one update behind in the parallel schedule)."""
-        return greedy_action(self.acting, obs["frames"], obs["speeds"])
+        return greedy_action(self.acting, obs["frames"], obs["speeds"], obs.get("controls"))
 
     def flat_weights(self) -> np.ndarray:
         """The online network's parameters as one float32 vector on the CPU (2.8 MB)."""
@@ -255,17 +258,17 @@ class Learner:
             (Huber loss, mean Q of the taken actions) when ``log_step`` is given.
         """
         cfg, dev = self.cfg, self.device
-        frames, speeds = b.frames.to(dev), b.speeds.to(dev)
-        next_frames, next_speeds = b.next_frames.to(dev), b.next_speeds.to(dev)
+        frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
+        next_frames, next_speeds, next_controls = b.next_frames.to(dev), b.next_speeds.to(dev), b.next_controls.to(dev)
         with torch.no_grad():
-            next_q_online = self.q(next_frames, next_speeds)  # [B, A]
-            next_q_target = self.target(next_frames, next_speeds)  # [B, A]
+            next_q_online = self.q(next_frames, next_speeds, next_controls)  # [B, A]
+            next_q_target = self.target(next_frames, next_speeds, next_controls)  # [B, A]
             # after a termination: the terminal reward forever, r / (1 - γ), or 0
             terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
             td_target = double_dqn_target(
                 b.returns.to(dev), b.terminated.to(dev), next_q_online, next_q_target, b.discounts.to(dev), terminal_values
             )  # [B]
-        q_taken = self.q(frames, speeds).gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
+        q_taken = self.q(frames, speeds, controls).gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
         loss = F.smooth_l1_loss(q_taken, td_target)  # Huber
         self.optimizer.zero_grad()
         loss.backward()
@@ -339,6 +342,7 @@ class Learner:
                 scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=self.server_args, zoom=cfg.zoom, set_speed=cfg.set_speed,
+                action=cfg.action,
             ))  # fmt: skip
         self.q.eval()
         self.last_eval = evaluate(self.q, self._eval_env, cfg.eval_trajectories)

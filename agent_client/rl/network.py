@@ -15,13 +15,14 @@ import torch.nn as nn
 from agent_client.preprocess import FRAME_H, FRAME_W
 from protocol.constants import FORCES, N_ACTIONS
 
-__all__ = ["QNetwork", "FORCES", "N_ACTIONS", "greedy_action", "linear_schedule"]
+__all__ = ["QNetwork", "FORCES", "N_ACTIONS", "greedy_action", "linear_schedule", "transfer_weights"]
 
 
 
 class QNetwork(nn.Module):
     """Convolutions over the frame stack (frames as channels); the host-speed sequence
-    joins at the fully connected layers; 21 Q-values out.
+    (and, for the "steps" action type, the controls sequence) joins at the fully
+    connected layers; one Q-value per action out (21 for the paper's force levels).
 
     conv 5x5/4 (16) -> conv 4x4/2 (32) -> conv 3x3/2 (64) -> 2560 features
     [2560 features, 8 speeds / speed_scale] -> fc 256 -> fc 21
@@ -30,12 +31,16 @@ class QNetwork(nn.Module):
     stride 4 rather than Atari's 8x8: on one CPU thread it cut a batch-32 update
     from about 80 ms to 58 ms and the batch-1 forward by about 15 %.
 
-    The forward pass takes frames and speeds only: there is no way to give it the gap.
+    The forward pass takes frames, speeds and the agent's own controls only
+    (:data:`agent_client.actions.CONTROLS`: its last force and the driver's set speed):
+    there is no way to give it the gap.
     """
 
-    def __init__(self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0):
+    def __init__(self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0):
         super().__init__()
-        self.speed_scale = speed_scale
+        self.speed_scale, self.n_controls = speed_scale, n_controls
+        # force as it is (in [-1, 1]); set speed over the speed scale
+        self._control_scale = torch.tensor([1.0, speed_scale][:n_controls])
         self.conv = nn.Sequential(
             nn.Conv2d(frame_stack, 16, 5, stride=4),
             nn.ReLU(),
@@ -47,34 +52,72 @@ class QNetwork(nn.Module):
         )
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1]
-        self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack, 256), nn.ReLU(), nn.Linear(256, n_actions))
+        self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack * (1 + n_controls), 256), nn.ReLU(), nn.Linear(256, n_actions))
 
     @classmethod
     def of(cls, cfg: Any) -> QNetwork:
         """The network a :class:`~agent_client.rl.config.Config` describes."""
-        return cls(cfg.frame_stack, N_ACTIONS, cfg.speed_scale)
+        from agent_client.actions import make_action_type
 
-    def forward(self, frames: torch.Tensor, speeds: torch.Tensor) -> torch.Tensor:
+        actions = make_action_type(cfg.action)
+        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls)
+
+    def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """Q-values.
 
         Args:
             frames: uint8 ``[B, frame_stack, 105, 150]``.
             speeds: host speeds [m/s], ``[B, frame_stack]``.
+            controls: ``[B, frame_stack, n_controls]`` (force, set speed [m/s]); only
+                for a network built with ``n_controls > 0``, which needs them.
 
         Returns:
-            ``[B, 21]`` Q-values, one per force level -1.0 .. 1.0.
+            ``[B, A]`` Q-values, one per action.
         """
         x = self.conv(frames.float() / 255.0)  # [B, 2560]
         v = speeds.float() / self.speed_scale  # [B, S]
-        return self.fc(torch.cat([x, v], dim=1))  # [B, A]
+        if not self.n_controls:
+            return self.fc(torch.cat([x, v], dim=1))  # [B, A]
+        if controls is None:
+            raise ValueError("this network observes its controls (force, set speed); none were given")
+        c = (controls.float() / self._control_scale.to(controls.device)).flatten(1)  # [B, S * C]
+        return self.fc(torch.cat([x, v, c], dim=1))  # [B, A]
 
 
-def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray) -> int:
-    """argmax_a Q(s, a) for one stacked observation (frames ``[S, H, W]``, speeds ``[S]``)."""
+def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
+    """argmax_a Q(s, a) for one stacked observation (frames ``[S, H, W]``, speeds ``[S]``,
+    controls ``[S, C]`` for a network that observes them)."""
     device = next(q.parameters()).device
     with torch.inference_mode():
-        qv = q(torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None])  # [1, A]
+        c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
+        qv = q(torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c)  # [1, A]
     return int(qv.argmax(dim=1).item())
+
+
+def transfer_weights(src: nn.Module, dst: nn.Module) -> list[str]:
+    """Start ``dst`` from ``src`` where their shapes allow (fine-tuning across action types).
+
+    A tensor of the same shape is copied. A weight that is wider in ``dst`` only in its
+    last dimension (the first fully connected layer, when controls join the input) gets
+    ``src``'s columns and zeros for the new ones, so ``dst`` starts by computing ``src``'s
+    features. Anything else (the output layer of another action set) keeps its
+    initialisation.
+
+    Returns:
+        The names of the tensors left as initialised.
+    """
+    src_state, kept = src.state_dict(), []
+    with torch.no_grad():
+        for name, t in dst.state_dict().items():
+            s = src_state.get(name)
+            if s is not None and s.shape == t.shape:
+                t.copy_(s)
+            elif s is not None and s.dim() == t.dim() and s.shape[:-1] == t.shape[:-1] and s.shape[-1] < t.shape[-1]:
+                t.zero_()
+                t[..., : s.shape[-1]] = s
+            else:
+                kept.append(name)
+    return kept
 
 
 def linear_schedule(start_e: float, end_e: float, duration: int, t: int) -> float:

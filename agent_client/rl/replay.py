@@ -27,6 +27,7 @@ class ReplaySamples(NamedTuple):
     indices: np.ndarray  # [B] absolute slots of the first observations
     frames: torch.Tensor  # [B, S, H, W] uint8
     speeds: torch.Tensor  # [B, S] float32 [m/s]
+    controls: torch.Tensor  # [B, S, C] float32 (C = 0 for the paper's action type)
     actions: torch.Tensor  # [B] int64
     rewards: torch.Tensor  # [B] float32, the first step's reward
     returns: torch.Tensor  # [B] float32, sum of gamma^k r_k over the m steps summed
@@ -36,6 +37,7 @@ class ReplaySamples(NamedTuple):
     truncated: torch.Tensor  # [B] bool, ... or was truncated
     next_frames: torch.Tensor  # [B, S, H, W] uint8, m steps on
     next_speeds: torch.Tensor  # [B, S] float32
+    next_controls: torch.Tensor  # [B, S, C] float32
 
 
 class _Plan(NamedTuple):
@@ -60,12 +62,17 @@ class ReplayMemory:
     Args:
         capacity: slots (about one per transition).
         frame_stack, stack_stride: as the env's.
+        frame_shape: (H, W) of a preprocessed frame.
+        n_controls: controls per slot (the "steps" action type's force and set speed; 0: none).
     """
 
-    def __init__(self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W)):
+    def __init__(
+        self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W), n_controls: int = 0
+    ):
         self.capacity, self.frame_stack, self.stack_stride = capacity, frame_stack, stack_stride
         self.frames = np.zeros((capacity, *frame_shape), np.uint8)
         self.speeds = np.zeros(capacity, np.float32)  # [m/s]
+        self.controls = np.zeros((capacity, n_controls), np.float32)
         self.pos = np.zeros(capacity, np.int32)  # step of the slot in its episode
         self.actions = np.zeros(capacity, np.uint8)
         self.rewards = np.zeros(capacity, np.float32)
@@ -86,13 +93,17 @@ class ReplayMemory:
         return sum(a.nbytes for a in self._arrays().values())
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        names = ("frames", "speeds", "pos", "actions", "rewards", "terminated", "truncated", "has_next")
+        names: tuple[str, ...] = ("frames", "speeds", "pos", "actions", "rewards", "terminated", "truncated", "has_next")
+        if self.controls.shape[1]:  # absent from the paper's memories and their files
+            names += ("controls",)
         return {n: getattr(self, n) for n in names}
 
-    def _write(self, frame: np.ndarray, speed: float, pos: int) -> None:
+    def _write(self, obs: dict[str, np.ndarray], pos: int) -> None:
         j = self.total % self.capacity
-        self.frames[j] = frame
-        self.speeds[j] = speed
+        self.frames[j] = obs["frames"][-1]
+        self.speeds[j] = float(obs["speeds"][-1])
+        if self.controls.shape[1]:
+            self.controls[j] = obs["controls"][-1]
         self.pos[j] = pos
         self.has_next[j] = False
         self.terminated[j] = self.truncated[j] = False
@@ -100,7 +111,7 @@ class ReplayMemory:
 
     def start(self, obs: dict[str, np.ndarray]) -> None:
         """Begin an episode with its first observation."""
-        self._write(obs["frames"][-1], float(obs["speeds"][-1]), 0)
+        self._write(obs, 0)
 
     def add(self, action: int, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray]) -> None:
         """Record the transition from the newest slot, and the next observation."""
@@ -109,7 +120,7 @@ class ReplayMemory:
         self.actions[j], self.rewards[j] = action, reward
         self.terminated[j], self.truncated[j] = terminated, truncated
         self.has_next[j] = True
-        self._write(next_obs["frames"][-1], float(next_obs["speeds"][-1]), int(self.pos[j]) + 1)
+        self._write(next_obs, int(self.pos[j]) + 1)
         self.transitions += 1
 
     def _stack_index(self, idx: np.ndarray) -> np.ndarray:
@@ -124,11 +135,16 @@ class ReplayMemory:
         j = self._stack_index(np.asarray(idx, np.int64)) % self.capacity
         return self.frames[j], self.speeds[j]
 
-    def _gather(self, idx: np.ndarray, out: torch.Tensor) -> np.ndarray:
-        """Frame stacks ending at ``idx`` ``[b]`` into ``out`` ``[b, S, H, W]``; returns their speeds ``[b, S]``."""
+    def stack_controls(self, idx: np.ndarray) -> np.ndarray:
+        """Control stacks ending at absolute slots ``idx``: ``[B, S, C]``."""
+        return self.controls[self._stack_index(np.asarray(idx, np.int64)) % self.capacity]
+
+    def _gather(self, idx: np.ndarray, out: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """Frame stacks ending at ``idx`` ``[b]`` into ``out`` ``[b, S, H, W]``; returns their
+        speeds ``[b, S]`` and controls ``[b, S, C]``."""
         j = self._stack_index(idx) % self.capacity  # [b, S]
         torch.index_select(self._frames_t, 0, torch.from_numpy(j.reshape(-1)), out=out.view(-1, *self.frames.shape[1:]))
-        return self.speeds[j]
+        return self.speeds[j], self.controls[j]
 
     def _valid(self, idx: np.ndarray) -> np.ndarray:
         oldest = self.total - self.capacity
@@ -247,12 +263,16 @@ class ReplayMemory:
 
 def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> ReplaySamples:
     """One :class:`ReplaySamples` from the plans of one or more memories, gathered into ``buffer``."""
-    speeds, next_speeds, fields = [], [], []
+    speeds, next_speeds, controls, next_controls, fields = [], [], [], [], []
     start = 0
     for memory, plan in parts:
         end = start + len(plan.idx)
-        speeds.append(memory._gather(plan.idx, buffer[0, start:end]))
-        next_speeds.append(memory._gather(plan.idx + plan.ns["m"], buffer[1, start:end]))
+        v, c = memory._gather(plan.idx, buffer[0, start:end])
+        speeds.append(v)
+        controls.append(c)
+        v, c = memory._gather(plan.idx + plan.ns["m"], buffer[1, start:end])
+        next_speeds.append(v)
+        next_controls.append(c)
         j = plan.idx % memory.capacity
         fields.append((plan.idx, memory.actions[j].astype(np.int64), memory.rewards[j], plan.ns))
         start = end
@@ -265,6 +285,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         indices=np.concatenate([f[0] for f in fields]),
         frames=buffer[0, :start],
         speeds=cat(speeds),
+        controls=cat(controls),
         actions=cat([f[1] for f in fields]),
         rewards=cat([f[2] for f in fields]),
         returns=cat([f[3]["returns"] for f in fields], np.float32),
@@ -274,6 +295,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         truncated=cat([f[3]["truncated"] for f in fields]),
         next_frames=buffer[1, :start],
         next_speeds=cat(next_speeds),
+        next_controls=cat(next_controls),
     )
 
 

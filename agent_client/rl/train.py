@@ -28,9 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from agent_client.actions import make_action_type
 from agent_client.rl.config import Config
 from agent_client.rl.learner import Learner
-from agent_client.rl.network import N_ACTIONS, linear_schedule
+from agent_client.rl.network import linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
 
@@ -97,7 +98,7 @@ def train(
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
     learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval)
-    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls)
     state = LoopState(**{k: v for k, v in learner.saved.items() if k in LoopState.__dataclass_fields__})
     env = None
     try:
@@ -106,9 +107,9 @@ def train(
             if memory.load(replay_path) != state.global_step:
                 raise InputFileError(f"{replay_path}: saved at a step other than latest.pt's {state.global_step}")
         env = VisionACCEnv(
-            scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
+            scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
-            set_speed=cfg.set_speed,
+            set_speed=cfg.set_speed, action=cfg.action,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)
     finally:
@@ -141,14 +142,17 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
 
     try:
         while state.global_step < cfg.total_steps:
-            obs, _ = env.reset(options={"seed": int(rng.integers(2**31))})
+            options: dict[str, Any] = {"seed": int(rng.integers(2**31))}
+            if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
+                options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
+            obs, _ = env.reset(options=options)
             memory.start(obs)
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
             while not done and state.global_step < cfg.total_steps and not STOP.is_set():
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
-                action = int(rng.integers(N_ACTIONS)) if rng.random() < epsilon else learner.act(obs)
+                action = int(rng.integers(env.action_space.n)) if rng.random() < epsilon else learner.act(obs)
                 obs, reward, terminated, truncated, _ = env.step(action)
                 memory.add(action, reward, terminated, truncated, obs)
                 episode_return += reward

@@ -176,9 +176,12 @@ def test_network_shapes_and_size():
 # -- the network never sees privileged state ----------------------------------------
 
 
-def test_forward_takes_frames_and_speeds_only():
+def test_forward_takes_frames_speeds_and_own_controls_only():
     params = list(inspect.signature(QNetwork.forward).parameters)
-    assert params == ["self", "frames", "speeds"], "the Q-network's input must be frames and host speeds only"
+    assert params == ["self", "frames", "speeds", "controls"], "the Q-network's input must be frames, host speeds and its controls"
+    from agent_client.actions import CONTROLS
+
+    assert CONTROLS == ("force", "set_speed")  # the agent's own last output and the driver's input
 
 
 class _Recording(dict):
@@ -202,25 +205,30 @@ def _raw_obs(rng: np.random.Generator, gap: float) -> _Recording:
     return _Recording(
         image=image.tobytes(), image_shape=[200, 200, 1], v_host=29.0, gap=gap, v_lead=31.0,
         a_lead=0.5, accel=0.1, force=0.0, collision=False, t=0.0, frame=0, terminated=False, truncated=False, reason="",
+        set_speed=33.5,
     )  # fmt: skip
 
 
-def test_controller_reads_only_image_and_host_speed():
-    ctl = DDQNController(QNetwork(), Config())
+@pytest.mark.parametrize("action, allowed", [("levels", {"image", "image_shape", "v_host"}), ("steps", {"image", "image_shape", "v_host", "set_speed"})])
+def test_controller_reads_only_image_host_speed_and_set_speed(action, allowed):
+    cfg = Config(action=action)
+    ctl = DDQNController(QNetwork.of(cfg), cfg)
     obs = _raw_obs(np.random.default_rng(0), gap=40.0)
     ctl(obs)
-    assert obs.read <= {"image", "image_shape", "v_host"}, f"the ddqn controller read {sorted(obs.read)}"
+    assert obs.read <= allowed, f"the ddqn controller read {sorted(obs.read)}"
 
 
-def test_changing_the_gap_cannot_change_the_action():
+@pytest.mark.parametrize("action", ["levels", "steps"])
+def test_changing_the_gap_cannot_change_the_action(action):
     torch.manual_seed(0)
-    q = QNetwork()
+    cfg = Config(action=action)
+    q = QNetwork.of(cfg)
     for layer in q.fc:  # make the output sensitive to its inputs
         if isinstance(layer, torch.nn.Linear):
             torch.nn.init.normal_(layer.weight, std=0.5)
     forces = set()
     for gap in (0.5, 20.0, 55.0, 150.0, 299.0):
-        ctl = DDQNController(q, Config())
+        ctl = DDQNController(q, cfg)
         rng = np.random.default_rng(3)  # same frames every time
         forces.add(tuple(ctl(_raw_obs(rng, gap)) for _ in range(10)))
     assert len(forces) == 1
@@ -237,6 +245,7 @@ def test_env_observations_carry_no_gap():
             assert set(obs) == {"frames", "speeds"}
             assert set(env.observation_space.spaces) == {"frames", "speeds"}
             assert "gap" in info
+            assert env.observation_space.contains(obs)
             ctl = DDQNController(QNetwork(), Config(stack_stride=env.stack_stride))
             a = ctl.act(obs)
             info["gap"] = 1.0  # privileged state changes; frames and speeds do not
