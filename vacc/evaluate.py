@@ -30,13 +30,15 @@ from protocol.scenarios import TEST_TRAJECTORIES
 from vacc.metrics_cmd import finite_non_negative
 
 TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
-METHODS = ("lead", "ddqn-gap", "ddqn-force", "acc", "human")
+METHODS = ("lead", "ddqn-gap", "ddqn-force", "ddqn-eco", "acc", "human")
 LABELS = {
     "lead": "Lead vehicle",
     "ddqn-gap": "Gap-based DDQN",
     "ddqn-force": "Force-based DDQN",
+    "ddqn-eco": "Eco DDQN (force steps)",
     "acc": "Traditional ACC",
 }
+OPTIONAL = ("ddqn-eco",)  # beyond the paper: in the default methods only where its model is shipped
 HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
 DEFAULT_VEHICLE = {"ice": "corolla", "ev": "leaf"}
 
@@ -291,6 +293,51 @@ def plot_runs(out: Path, methods: list[str], labels: dict[str, str], traj: str =
     plt.close(fig)
 
 
+def plot_pareto(out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str, settle: float = SETTLE_S) -> None:
+    """fig_pareto.png/.pdf: gap RMSE against energy, one point per method, coloured by the
+    share of 1-s windows over ISO 15622's jerk limit; one panel per trajectory and their mean.
+
+    Lower left is better on both axes; a pale point rides more comfortably than a dark one.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    energy_key, energy_label = ("fuel_g_per_mi", "fuel [g/mi]") if scenario == "ice" else ("energy_kj_per_mi", "energy [kJ/mi]")
+    followers = [m for m in methods if m != "lead"]
+    points: dict[str, dict[str, tuple[float, float, float]]] = {}
+    for traj in TRAJECTORIES:
+        for m in followers:
+            log = out / "logs" / f"{m}-{traj}.csv"
+            if log.exists():
+                r: dict[str, Any] = evaluate_run(log, vehicle, settle_s=settle)
+                points.setdefault(traj, {})[m] = (float(r[energy_key]), float(r["gap_rmse_55m_m"]), float(r["iso_jerk_window_share"] or 0.0))
+    complete = [t for t in points if all(m in points[t] for m in followers)]
+    if complete:
+        points["mean of " + str(len(complete))] = {m: tuple(float(np.mean([points[t][m][i] for t in complete])) for i in range(3)) for m in followers}  # type: ignore[misc]
+    panels = list(points) or ["no runs"]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.4), squeeze=False, sharey=False)
+    markers = dict(zip(followers, "osD^vP*X", strict=False))
+    sc = None
+    for ax, name in zip(axes[0], panels, strict=True):
+        if name not in points:
+            ax.text(0.5, 0.5, f"no runs in {out / 'logs'}", ha="center", va="center", transform=ax.transAxes)
+            continue
+        for m, (e, rmse, jerk) in points[name].items():
+            sc = ax.scatter([e], [rmse], c=[100.0 * jerk], cmap="viridis_r", vmin=0.0, vmax=100.0, marker=markers[m], s=60, edgecolors="k", label=labels[m])
+        ax.set(title=name, xlabel=energy_label)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("gap RMSE to 55 m [m]")
+    if sc is not None:
+        axes[0][0].legend(fontsize=7, loc="best")
+        fig.colorbar(sc, ax=axes[0].tolist(), label=f"1-s windows over {ISO_JERK_LIMIT_MPS3:g} m/s³ [%]")
+    fig.suptitle(f"{scenario.upper()}: gap against energy (lower left is better)", fontsize=10)
+    for ext in ("png", "pdf"):
+        fig.savefig(out / f"fig_pareto.{ext}", dpi=110)
+    plt.close(fig)
+
+
 def plot_training(out: Path, models: Path, scenario: str) -> None:
     """fig_training.png from the shipped models' training curves (``<model>.curve.csv``: step,avg_reward;
     ``#`` lines are comments)."""
@@ -301,7 +348,7 @@ def plot_training(out: Path, models: Path, scenario: str) -> None:
 
     fig, ax = plt.subplots(figsize=(9, 4))
     found = False
-    for reward in ("gap", "force"):
+    for reward in ("gap", "force", "eco"):
         curve = models / f"{scenario}-{reward}.curve.csv"
         if curve.exists():
             rows = [r for r in csv.DictReader(line for line in curve.open() if not line.startswith("#"))]
@@ -337,7 +384,7 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
-@click.option("--methods", default=",".join(METHODS), show_default=True, help="Comma-separated subset of: " + ", ".join(METHODS))
+@click.option("--methods", default=None, help="Comma-separated subset of: " + ", ".join(METHODS) + f". Default: all; {', '.join(OPTIONAL)} only where its model is in --models.")
 @click.option("--models", default="models", show_default=True, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
 @click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")
 @click.option("--vehicle", default=None, type=click.Choice(["corolla", "average", "leaf"]), help="Energy model; default corolla (ICE) or leaf (EV).")
@@ -347,7 +394,7 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table.")
 @click.option("--seeds", default="0-9", show_default=True, help="--suite safety: episode seeds, e.g. 0-9 or 0,3,5.")
-def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float, suite: str, seeds: str) -> None:
+def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float, suite: str, seeds: str) -> None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table)."""
     if suite == "safety":
@@ -361,6 +408,8 @@ def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tu
         click.echo(run_suite(Path(out), found, seed_list, jobs))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return
+    if methods is None:
+        methods = ",".join(m for m in METHODS if m not in OPTIONAL or (Path(models) / f"{scenario}-{m.removeprefix('ddqn-')}.pt").is_file())
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     unknown = sorted(set(chosen) - set(METHODS))
     if unknown:
@@ -392,5 +441,6 @@ def evaluate(scenario: str, out: str, methods: str, models: str, human_files: tu
     build_tables(out_dir, scenario, chosen, labels, veh, settle)
     plot_runs(out_dir, chosen, labels)
     plot_training(out_dir, models_dir, scenario)
+    plot_pareto(out_dir, scenario, chosen, labels, veh, settle)
     click.echo((out_dir / "table.md").read_text().split("\n## ")[0])
-    click.echo(f"Wrote {out_dir}/table.md, table.csv, fig_gap.png, fig_speed.png, fig_training.png and logs/")
+    click.echo(f"Wrote {out_dir}/table.md, table.csv, fig_gap.png, fig_speed.png, fig_training.png, fig_pareto.png/.pdf and logs/")

@@ -90,6 +90,31 @@ def test_ddqn_methods_drive_from_the_models_folder(tmp_path, zoom):
     assert "Gap-based DDQN" in (out / "table.md").read_text()
 
 
+def test_eco_model_joins_the_default_methods_with_a_pareto_figure(tmp_path):
+    """A shipped <scenario>-eco.pt (force steps) is a column of the default table; fig_pareto plots every method."""
+    from agent_client.rl.checkpoint import save_policy
+    from agent_client.rl.config import Config
+    from agent_client.rl.network import QNetwork
+
+    models = tmp_path / "models"
+    models.mkdir()
+    out = tmp_path / "out"
+    result = vacc("evaluate", "--out", str(out), "--models", str(models), "--duration", "2", "--jobs", "2", "--methods", "ddqn-eco")
+    assert result.returncode != 0 and "ice-eco.pt" in result.stderr and "--reward eco" in result.stderr
+    cfg = Config(reward="eco", action="steps", zoom=2)
+    save_policy(QNetwork.of(cfg), cfg, models / "ice-eco.pt")
+    for name in ("gap", "force"):
+        save_policy(QNetwork(), Config(reward=name), models / f"ice-{name}.pt")
+    result = vacc("evaluate", "--out", str(out), "--models", str(models), "--duration", "2", "--jobs", "2")
+    assert result.returncode == 0, result.stderr
+    header = next(csv.reader((out / "table.csv").open()))
+    assert "Eco DDQN (force steps)" in header and "Traditional ACC" in header
+    forces = np.loadtxt(out / "logs" / "ddqn-eco-test-1.csv", delimiter=",", skiprows=1, usecols=6)
+    assert np.all(np.abs(np.diff(forces)) <= 0.5 + 1e-9)  # it holds its force between steps
+    for ext in ("png", "pdf"):
+        assert (out / f"fig_pareto.{ext}").stat().st_size > 1000
+
+
 def _write_log(path, gap: float, v_max: float, flips: bool) -> None:
     """A 30 s log at 0.1 s: steady at 20 m/s with one row at v_max and gap; ±1.5 m/s²
     flips every second over 20-25 s when flips."""
