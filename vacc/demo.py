@@ -20,6 +20,7 @@ from agent_client.launcher import local_server
 from agent_client.session import Session
 from energy import evaluate_run
 from protocol.scenarios import TEST_TRAJECTORIES
+from vacc.paths import MODELS_DEFAULT, models_dir
 
 ROWS = (
     ("gap RMSE to 55 m", "gap_rmse_55m_m", "m"),
@@ -59,7 +60,7 @@ def acc_only(out: Path, trajectory: str) -> None:
 
 @click.command("demo")
 @click.option("--out", default="runs/demo", show_default=True, type=click.Path(file_okay=False), help="Where tables, figures and logs go.")
-@click.option("--models", default="models", show_default=True, type=click.Path(file_okay=False), help="Where ice-gap.pt and ice-force.pt are.")
+@click.option("--models", default=lambda: str(models_dir()), show_default=MODELS_DEFAULT, type=click.Path(file_okay=False), help="Where ice-gap.pt and ice-force.pt are.")
 @click.option("--acc-only", "acc_only_", is_flag=True, help="Only drive the traditional ACC on --trajectory.")
 @click.option("--trajectory", default="test-1", show_default=True, type=click.Choice(TEST_TRAJECTORIES), help="Trajectory of --acc-only.")
 @click.pass_context

@@ -28,6 +28,7 @@ from energy import SETTLE_S, evaluate_run
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from protocol.scenarios import TEST_TRAJECTORIES
 from vacc.metrics_cmd import finite_non_negative
+from vacc.paths import MODELS_DEFAULT, models_dir
 
 TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
 METHODS = ("lead", "ddqn-gap", "ddqn-force", "ddqn-eco", "acc", "human")
@@ -385,7 +386,7 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
 @click.option("--methods", default=None, help="Comma-separated subset of: " + ", ".join(METHODS) + f". Default: all; {', '.join(OPTIONAL)} only where its model is in --models.")
-@click.option("--models", default="models", show_default=True, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
+@click.option("--models", default=lambda: str(models_dir()), show_default=MODELS_DEFAULT, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
 @click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")
 @click.option("--vehicle", default=None, type=click.Choice(["corolla", "average", "leaf"]), help="Energy model; default corolla (ICE) or leaf (EV).")
 @click.option("--duration", default=None, type=click.FloatRange(min=0.5), help="Drive only this many seconds of each trajectory.")
