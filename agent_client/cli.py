@@ -78,8 +78,9 @@ def load_lead(trajectory: str) -> tuple[np.ndarray, np.ndarray] | None:
     """
     if trajectory in TRAJECTORIES:
         return None
-    if not trajectory.lower().endswith(".csv") and not Path(trajectory).exists():
-        raise click.BadParameter(f"unknown trajectory {trajectory!r}; expected one of {', '.join(TRAJECTORIES)} or PATH.csv", param_hint="--trajectory")
+    if not Path(trajectory).exists():  # a mistyped name or path: say both what exists and what was meant
+        what = "no such trace file" if trajectory.lower().endswith(".csv") else "unknown trajectory"
+        raise click.BadParameter(f"{what} {trajectory!r}; expected one of {', '.join(TRAJECTORIES)} or an existing PATH.csv", param_hint="--trajectory")
     try:
         return load_trace(trajectory)
     except ClientError as exc:

@@ -66,6 +66,9 @@ def test_csv_lead_is_driven_as_given(tmp_path):
         (["--gap", "nan"], "gap nan m is outside"),
         (["--set-speed", "0"], "Invalid value for --set-speed: set speed 0.0 m/s is outside 1..80 m/s"),
         (["--trajectory", "parked"], "unknown trajectory 'parked'; expected one of test-1, test-2, test-3, test-4, random, stopped,"),
+        (["--trajectory", "test-5"], "unknown trajectory 'test-5'; expected one of test-1, test-2, test-3, test-4, random, stopped,"),
+        # a missing file lists the names too, not only "No such file or directory"
+        (["--trajectory", "no-such-dir/lead.csv"], "no such trace file 'no-such-dir/lead.csv'; expected one of test-1, test-2, test-3, test-4, random,"),
     ],
 )
 def test_bad_values_are_one_line_errors(tmp_path, args, words):
