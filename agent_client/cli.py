@@ -26,6 +26,7 @@ from agent_client.controllers.keyboard import (
     DrivingWindow,
     JoystickMap,
     KeyboardController,
+    require_display,
     require_pygame,
 )
 from agent_client.drive import drive_episode
@@ -185,6 +186,7 @@ def drive(
     if controller == "keyboard":  # built inside its window, below
         try:
             require_pygame()  # fail before a server is spawned
+            require_display()
         except ClientError as exc:
             raise click.ClickException(str(exc)) from None
         if server is not None:

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +43,9 @@ __all__ = [
     "INSTALL_HINT",
     "PygameMissing",
     "require_pygame",
+    "NoDisplay",
+    "DISPLAY_VARIABLES",
+    "require_display",
     "ramp",
     "JoystickMap",
     "DrivingWindow",
@@ -71,6 +75,39 @@ def require_pygame() -> Any:
     except ImportError:
         raise PygameMissing(f"live driving needs pygame, which is not installed: {INSTALL_HINT}") from None
     return pygame
+
+
+class NoDisplay(RuntimeError, ClientError):
+    """No display to open a window on; the message says what to set."""
+
+
+# Where SDL finds a desktop on X11/Wayland systems. SDL_VIDEODRIVER names a driver
+# explicitly ("dummy" for headless tests, "kmsdrm" on a bare console).
+DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
+
+
+def require_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> None:
+    """Refuse to open a window where nobody can see it.
+
+    Without a display SDL quietly falls back to its offscreen driver: no window, no
+    key ever pressed, a run driven at zero force. macOS and Windows always have a
+    desktop; elsewhere one of :data:`DISPLAY_VARIABLES` must be set.
+
+    Args:
+        environ: the environment to look in (default ``os.environ``).
+        platform: the platform to judge (default ``sys.platform``).
+
+    Raises:
+        NoDisplay: one line naming the variables.
+    """
+    if (sys.platform if platform is None else platform) in ("darwin", "win32", "cygwin"):
+        return
+    env = os.environ if environ is None else environ
+    if not any(env.get(name) for name in DISPLAY_VARIABLES):
+        raise NoDisplay(
+            "live driving needs a display, and none is set (DISPLAY, WAYLAND_DISPLAY); "
+            "run it on a desktop or with ssh -X, or set SDL_VIDEODRIVER to choose a driver"
+        )
 
 
 def ramp(u: float, throttle: bool, brake: bool, dt: float) -> float:
@@ -148,10 +185,15 @@ class DrivingWindow:
     Args:
         scale: integer zoom of the camera image.
         title: window caption.
+
+    Raises:
+        PygameMissing: pygame is not installed.
+        NoDisplay: there is no display to open the window on.
     """
 
     def __init__(self, scale: int = 2, title: str = "vacc: drive (Up/Down, Esc to end)"):
         self.pg = require_pygame()
+        require_display()
         self.scale = scale
         self.title = title
         self.pg.display.init()

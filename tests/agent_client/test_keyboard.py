@@ -85,6 +85,31 @@ def test_without_pygame_the_error_says_how_to_install(monkeypatch, tmp_path):
     assert "pip install 'vacc[human]'" in result.output and "Traceback" not in result.output
 
 
+@pytest.mark.parametrize("name", kb.DISPLAY_VARIABLES)
+def test_a_display_or_an_explicit_sdl_driver_is_enough(name):
+    kb.require_display({name: ":0" if name == "DISPLAY" else "x"}, platform="linux")
+
+
+def test_no_display_is_refused():
+    with pytest.raises(kb.NoDisplay, match=r"needs a display.*DISPLAY, WAYLAND_DISPLAY.*SDL_VIDEODRIVER"):
+        kb.require_display({"DISPLAY": "", "HOME": "/root"}, platform="linux")
+    assert issubclass(kb.NoDisplay, ClientError)
+    kb.require_display({}, platform="darwin")  # a desktop is always there
+    kb.require_display({}, platform="win32")
+
+
+def test_keyboard_without_a_display_fails_in_one_line_before_any_server(monkeypatch, pygame, tmp_path):
+    # Before: SDL's offscreen fallback drove a whole episode at zero force and exited 0.
+    for name in kb.DISPLAY_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    result = _run("--controller", "keyboard", "--log", str(tmp_path / "log.csv"), "--duration", "1")
+    assert result.exit_code == 1
+    errors = [line for line in result.output.splitlines() if line]
+    assert errors == [errors[0]] and errors[0].startswith("Error: live driving needs a display"), result.output
+    assert not (tmp_path / "log.csv").exists()
+
+
 # -- scripted key events through `vacc drive --controller keyboard` ----------------------
 
 
