@@ -1,50 +1,75 @@
-"""Drive the shipped ICE models and the ACC on held-out random trajectories over UDP.
+"""Drive models and the ACC on held-out random episodes over UDP; score gap, energy and comfort.
 
-    .venv/bin/python scripts/random_eval.py 100 108      # episode seeds 100..107 -> runs/random-eval/
+    .venv/bin/python scripts/random_eval.py --seeds 100-107 ice-eco=models/ice-eco.pt ice-gap=models/ice-gap.pt
+    .venv/bin/python scripts/random_eval.py --scenario ev --seeds 100-107 ev-eco=models/ev-eco.pt
 
-Each run is `vacc drive --trajectory random --seed S`: a random eq. 7 lead, start,
-traffic and light that no model was selected on. Prints gap RMSE to 55 m per seed.
+Each run is `vacc drive --trajectory random --seed S`: a random lead (eq. 7 for the ICE
+car, a real-trace window for the EV), start, traffic and light that no model was
+selected on (training draws its seeds from [0, 2^31); selection used random:1..4). The
+ACC is always driven alongside. Writes runs/random-eval-<scenario>/summary.json and
+prints, per controller, the mean and worst gap RMSE to 55 m, the mean energy, and the
+comfort figures after the first 15 s.
 """
 
-import csv
+from __future__ import annotations
+
+import argparse
 import json
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-CONTROLLERS = {
-    "ice-gap": ["--controller", "ddqn", "--checkpoint", "models/ice-gap.pt"],
-    "ice-force": ["--controller", "ddqn", "--checkpoint", "models/ice-force.pt"],
-    "acc": ["--controller", "acc"],
-}
+from energy import SETTLE_S, evaluate_run
+from vacc.safety import parse_seeds
+
+VEHICLE = {"ice": "corolla", "ev": "leaf"}
+ENERGY = {"ice": ("fuel_g_per_mi", "g/mi"), "ev": ("energy_kj_per_mi", "kJ/mi")}
 
 
-def main(first: int, stop: int, out: Path = Path("runs/random-eval")) -> None:
+def _drive(scenario: str, name: str, args: list[str], seed: int, out: Path) -> dict:
+    log = out / f"{name}-seed{seed}.csv"
+    cmd = [sys.executable, "-m", "vacc", "drive", *args, "--scenario", scenario, "--trajectory", "random", "--seed", str(seed), "--log", str(log), "--quiet"]
+    subprocess.run(cmd, check=True)
+    m = evaluate_run(log, VEHICLE[scenario], settle_s=SETTLE_S)
+    keys = ("gap_rmse_55m_m", "collisions", "gap_min_m", ENERGY[scenario][0], "jerk_rms_mps3", "iso_jerk_window_share", "speed_max_mps")
+    return {"seed": seed, **{k: m[k] for k in keys}}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scenario", choices=("ice", "ev"), default="ice")
+    p.add_argument("--seeds", default="100-107", help="episode seeds, e.g. 100-107")
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT")
+    a = p.parse_args()
+    controllers = {"acc": ["--controller", "acc"]}
+    for item in a.models:
+        name, _, path = item.partition("=")
+        controllers[name] = ["--controller", "ddqn", "--checkpoint", path]
+    out = Path(f"runs/random-eval-{a.scenario}")
     out.mkdir(parents=True, exist_ok=True)
+    seeds = parse_seeds(a.seeds)
+    jobs = [(name, args, s) for name, args in controllers.items() for s in seeds]
+    with ThreadPoolExecutor(a.jobs) as pool:  # each job is its own server and client processes
+        done = list(pool.map(lambda j: _drive(a.scenario, j[0], j[1], j[2], out), jobs))
     results: dict[str, list[dict]] = {}
-    for name, args in CONTROLLERS.items():
-        for seed in range(first, stop):
-            log = out / f"{name}-seed{seed}.csv"
-            cmd = [sys.executable, "-m", "vacc", "drive", *args, "--scenario", "ice", "--trajectory", "random", "--seed", str(seed), "--log", str(log), "--quiet"]
-            subprocess.run(cmd, check=True)
-            rows = list(csv.DictReader(open(log)))
-            gap = np.array([float(r["gap"]) for r in rows])
-            t = np.array([float(r["t"]) for r in rows])
-            results.setdefault(name, []).append({
-                "seed": seed,
-                "rmse_m": float(np.sqrt(np.mean((gap - 55.0) ** 2))),
-                "rmse_after_15s_m": float(np.sqrt(np.mean((gap[t >= 15.0] - 55.0) ** 2))),
-                "collision": any(r["collision"] in ("1", "True") for r in rows),
-                "end_s": float(t[-1]),
-            })  # fmt: skip
+    for (name, _, _), r in zip(jobs, done, strict=True):
+        results.setdefault(name, []).append(r)
     (out / "summary.json").write_text(json.dumps(results, indent=1) + "\n")
+    key, unit = ENERGY[a.scenario]
     for name, runs in results.items():
-        rmse = np.array([r["rmse_m"] for r in runs])
-        print(f"{name}: gap RMSE mean {rmse.mean():.2f} m, worst {rmse.max():.2f} m, collisions {sum(r['collision'] for r in runs)}")
-        print("   ", " ".join(f"{x:.2f}" for x in rmse))
+        rmse = np.array([r["gap_rmse_55m_m"] for r in runs])
+        print(
+            f"{name}: gap RMSE mean {rmse.mean():.2f} m, worst {rmse.max():.2f} m; "
+            f"energy {np.mean([r[key] for r in runs]):.1f} {unit}; jerk RMS {np.mean([r['jerk_rms_mps3'] for r in runs]):.2f} m/s^3, "
+            f"worst ISO jerk share {100 * max(r['iso_jerk_window_share'] for r in runs):.1f} %; "
+            f"collisions {sum(r['collisions'] for r in runs)}, min gap {min(r['gap_min_m'] for r in runs):.1f} m"
+        )
+        print("    RMSE per seed:", " ".join(f"{x:.2f}" for x in rmse))
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]), int(sys.argv[2]))
+    main()
