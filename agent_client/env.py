@@ -1,11 +1,16 @@
 """Gymnasium environment over a real UDP session with the simulator server.
 
-Registered as ``vacc/VisionACC-v0``.
+Registered as ``vacc/VisionACC-v0`` when this module is imported. Gymnasium 1.x
+has no plugin entry points, so after ``pip install`` alone name the module in the
+id, and ``gym.make`` imports it::
+
+    env = gym.make("agent_client.env:vacc/VisionACC-v0")
 """
 
 from __future__ import annotations
 
 import contextlib
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -20,12 +25,19 @@ from agent_client.rewards import REWARDS, make_reward
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
-from protocol.constants import FORCES, N_ACTIONS
-from protocol.scenarios import check_initial, check_trajectory
+from protocol.constants import CAMERA_SIZE, FORCES, N_ACTIONS
+from protocol.scenarios import LEAD_SCENARIOS, check_initial, check_trajectory
+from sim_server.trajectory import RANDOM_DURATION, TEST_DURATION
+from sim_server.world import WorldConfig
 
-__all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED"]
+__all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED", "ENV_ID", "MAX_EPISODE_STEPS"]
 
+ENV_ID = "vacc/VisionACC-v0"
 RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed"})
+CONTROL_PERIOD = WorldConfig().control_period  # [s] a spawned server's default (0.1 s)
+# The longest named trajectory (the 240 s tests and random episodes) in control steps:
+# gym.make's TimeLimit, a backstop the server's own truncation reaches at the same step.
+MAX_EPISODE_STEPS = round(max(TEST_DURATION, RANDOM_DURATION, *(s.duration for s in LEAD_SCENARIOS.values())) / CONTROL_PERIOD)
 
 
 class VisionACCEnv(gym.Env):
@@ -67,7 +79,27 @@ class VisionACCEnv(gym.Env):
 
     ## Episode end
     Terminated on a collision or a gap over 300 m; truncated at the end of the
-    trajectory (240 s) or ``episode_seconds``.
+    trajectory (240 s) or ``episode_seconds``. ``gym.make`` adds a ``TimeLimit`` of
+    :data:`MAX_EPISODE_STEPS` (2400: 240 s at 0.1 s); pass ``max_episode_steps=`` if
+    ``server_args`` change the control period (``--substeps``).
+
+    ## Rendering
+    ``render_mode="rgb_array"``: ``render()`` returns the camera frame the agent's
+    observation was cut from, in colour: ``(200, 200, 3)`` uint8 at ``zoom=1``,
+    ``(400, 400, 3)`` at ``zoom=2``. The session then asks for RGB frames and the env
+    converts them to gray as the server would (the same ``cv2`` conversion), so the
+    observation is bit-identical to an unrendered env's. ``render_mode="human"``:
+    the same frame in a pygame window (``pip install 'vacc[human]'``), drawn on
+    every ``reset`` and ``step`` at ``render_fps`` (real time); without a display
+    (``DISPLAY``, ``WAYLAND_DISPLAY`` or an explicit ``SDL_VIDEODRIVER``) it warns
+    and draws offscreen. ``gymnasium.wrappers.RecordVideo`` works with
+    ``rgb_array``.
+
+    ## Making it
+    ``gym.make("agent_client.env:vacc/VisionACC-v0", scenario="ice")`` works after
+    ``pip install`` alone (the ``module:`` prefix imports the module that registers
+    the id; Gymnasium 1.x has no plugin entry points). After ``import
+    agent_client.env``, ``gym.make("vacc/VisionACC-v0")`` works as well.
 
     ## Arguments
     ``server``: (host, port) of a running server, or None to spawn one (reaped on
@@ -81,10 +113,12 @@ class VisionACCEnv(gym.Env):
 
     ## Version history
     * v0: first version; lead scenarios, ``set_speed`` and the ``host_speed``/``gap``
-      reset options added with protocol version 2.
+      reset options added with protocol version 2; ``action="steps"``; colour
+      ``rgb_array``, ``human`` rendering and ``max_episode_steps`` (no change to
+      observations, rewards or dynamics, so still v0).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": round(1.0 / CONTROL_PERIOD)}
 
     def __init__(
         self,
@@ -114,6 +148,16 @@ class VisionACCEnv(gym.Env):
             raise ValueError("frame_stack and stack_stride must be >= 1")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r} is not one of {self.metadata['render_modes']}")
+        if render_mode == "human":  # fail before a server is spawned, not at the first draw
+            from agent_client.controllers.keyboard import has_display, require_pygame
+
+            require_pygame()
+            if not has_display():  # the agent drives, so no error (check_env tries every mode headless)
+                warnings.warn(
+                    "render_mode='human' without a display (DISPLAY, WAYLAND_DISPLAY): the window is "
+                    "drawn offscreen, unseen; set SDL_VIDEODRIVER=dummy to say that is meant",
+                    stacklevel=2,
+                )
         image_size = pre.camera_size(zoom)  # checks zoom
         self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
@@ -136,15 +180,21 @@ class VisionACCEnv(gym.Env):
         # key_file: the shared key of a remote server (vacc serve --key-file); a spawned one gets it too.
         key = load_key(key_file) if key_file is not None else None
         addr = server if server is not None else self._stack.enter_context(local_server(*server_args, key_file=key_file))
+        # Rendering asks for the same camera in colour; preprocess converts it to gray
+        # exactly as the server would, so the observation does not change.
+        image_format = "gray" if render_mode is None else "rgb"
         self.session = self._stack.enter_context(
-            Session(addr, image_format="gray", image_size=image_size, give_up=give_up, client_name="vacc-env", key=key)
+            Session(addr, image_format=image_format, image_size=image_size, give_up=give_up, client_name="vacc-env", key=key)
         )
         self._stacker = FrameStacker(frame_stack, stack_stride)
         self._last_image: np.ndarray | None = None
+        self._last_info: dict[str, Any] = {}
+        self._window: Any = None  # the human render mode's DrivingWindow, opened on first draw
+        self._clock: Any = None
 
     def _observe(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
         image = Session.image(obs)
-        if image is None:  # the session asked for gray frames; a server that drops them is broken
+        if image is None:  # the session asked for frames; a server that drops them is broken
             raise FatalSessionError("the server sent an observation without a camera image")
         self._last_image = image
         controls = self.actions.controls(float(obs["set_speed"])) if self.actions.n_controls else None
@@ -180,7 +230,9 @@ class VisionACCEnv(gym.Env):
         self._a_prev = float(obs.get("accel", 0.0))
         info = self._info(obs)
         info["seed"] = episode_seed
-        return self._observe(obs), info
+        observation = self._observe(obs)
+        self._after(info)
+        return observation, info
 
     def step(self, action):
         if not self.action_space.contains(action):
@@ -190,16 +242,54 @@ class VisionACCEnv(gym.Env):
         a = float(obs["accel"])
         reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev)
         self._a_prev = a
-        return self._observe(obs), reward, bool(obs["terminated"]), bool(obs["truncated"]), self._info(obs)
+        observation, info = self._observe(obs), self._info(obs)
+        self._after(info)
+        return observation, reward, bool(obs["terminated"]), bool(obs["truncated"]), info
 
-    def render(self):
-        if self.render_mode == "rgb_array" and self._last_image is not None:
-            img = self._last_image
-            return np.repeat(img[..., None], 3, axis=2) if img.ndim == 2 else img
+    def _after(self, info: dict[str, Any]) -> None:
+        self._last_info = info
+        if self.render_mode == "human":  # Gymnasium's convention: human mode draws itself
+            self.render()
+
+    def render(self) -> np.ndarray | None:
+        """The last camera frame in colour (``rgb_array``), or draw it (``human``).
+
+        Returns:
+            ``(H, W, 3)`` uint8 for ``rgb_array``; None for ``human``, without a
+            render mode, or before the first ``reset``.
+
+        Raises:
+            agent_client.controllers.keyboard.PygameMissing: ``human`` without pygame.
+            agent_client.controllers.keyboard.NoDisplay: ``human`` without a display.
+        """
+        if self._last_image is None:
+            return None
+        if self.render_mode == "rgb_array":
+            return self._last_image.copy()  # the caller may keep it; the next step reuses nothing
+        if self.render_mode == "human":
+            self._draw(self._last_image)
         return None
+
+    def _draw(self, image: np.ndarray) -> None:
+        if self._window is None:
+            # pygame only when asked for
+            from agent_client.controllers.keyboard import DrivingWindow
+
+            scale = max(1, CAMERA_SIZE[0] // image.shape[1])
+            self._window = DrivingWindow(scale, f"{ENV_ID} ({self.scenario}/{self.trajectory})", offscreen_ok=True)
+            self._stack.callback(self._window.close)
+            self._clock = self._window.pg.time.Clock()
+        self._window.events()  # keeps the window responsive; the agent, not the keys, drives
+        i = self._last_info
+        lines = [
+            f"t {i['t']:6.1f} s   speed {i['v_host']:5.2f} m/s   set {i['set_speed']:5.2f} m/s",
+            f"gap {i['gap']:6.1f} m   lead {i['v_lead']:5.2f} m/s   force {i['force']:+.2f}",
+        ]
+        self._window.draw(image, lines)
+        self._clock.tick(self.metadata["render_fps"])
 
     def close(self) -> None:
         self._stack.close()
 
 
-gym.register(id="vacc/VisionACC-v0", entry_point="agent_client.env:VisionACCEnv")
+gym.register(id=ENV_ID, entry_point="agent_client.env:VisionACCEnv", max_episode_steps=MAX_EPISODE_STEPS)

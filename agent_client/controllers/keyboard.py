@@ -45,6 +45,7 @@ __all__ = [
     "require_pygame",
     "NoDisplay",
     "DISPLAY_VARIABLES",
+    "has_display",
     "require_display",
     "ramp",
     "JoystickMap",
@@ -86,24 +87,32 @@ class NoDisplay(RuntimeError, ClientError):
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
 
 
-def require_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> None:
-    """Refuse to open a window where nobody can see it.
+def has_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> bool:
+    """Whether a window SDL opens can be seen (or a driver was chosen explicitly).
 
-    Without a display SDL quietly falls back to its offscreen driver: no window, no
-    key ever pressed, a run driven at zero force. macOS and Windows always have a
-    desktop; elsewhere one of :data:`DISPLAY_VARIABLES` must be set.
+    macOS and Windows always have a desktop; elsewhere one of
+    :data:`DISPLAY_VARIABLES` must be set.
 
     Args:
         environ: the environment to look in (default ``os.environ``).
         platform: the platform to judge (default ``sys.platform``).
+    """
+    if (sys.platform if platform is None else platform) in ("darwin", "win32", "cygwin"):
+        return True
+    env = os.environ if environ is None else environ
+    return any(env.get(name) for name in DISPLAY_VARIABLES)
+
+
+def require_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> None:
+    """Refuse to open a window where nobody can see it (see :func:`has_display`).
+
+    Without a display SDL quietly falls back to its offscreen driver: no window, no
+    key ever pressed, a run driven at zero force.
 
     Raises:
         NoDisplay: one line naming the variables.
     """
-    if (sys.platform if platform is None else platform) in ("darwin", "win32", "cygwin"):
-        return
-    env = os.environ if environ is None else environ
-    if not any(env.get(name) for name in DISPLAY_VARIABLES):
+    if not has_display(environ, platform):
         raise NoDisplay(
             "live driving needs a display, and none is set (DISPLAY, WAYLAND_DISPLAY); "
             "run it on a desktop or with ssh -X, or set SDL_VIDEODRIVER to choose a driver"
@@ -185,15 +194,18 @@ class DrivingWindow:
     Args:
         scale: integer zoom of the camera image.
         title: window caption.
+        offscreen_ok: open it even without a display (a watched env that nobody
+            watches); a human driver needs one.
 
     Raises:
         PygameMissing: pygame is not installed.
         NoDisplay: there is no display to open the window on.
     """
 
-    def __init__(self, scale: int = 2, title: str = "vacc: drive (Up/Down, Esc to end)"):
+    def __init__(self, scale: int = 2, title: str = "vacc: drive (Up/Down, Esc to end)", *, offscreen_ok: bool = False):
         self.pg = require_pygame()
-        require_display()
+        if not offscreen_ok:
+            require_display()
         self.scale = scale
         self.title = title
         self.pg.display.init()
