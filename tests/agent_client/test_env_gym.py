@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -132,9 +133,10 @@ def test_record_video_writes_an_episode(tmp_path):
     pytest.importorskip("moviepy", reason="RecordVideo needs moviepy (gymnasium[other])")
     from gymnasium.wrappers import RecordVideo
 
+    folder = tmp_path / "videos"
     env = RecordVideo(
         gym.make(ENV_ID, episode_seconds=1.0, render_mode="rgb_array"),
-        str(tmp_path),
+        str(folder),
         episode_trigger=lambda episode: True,
         name_prefix="vacc",
     )
@@ -146,8 +148,21 @@ def test_record_video_writes_an_episode(tmp_path):
             if terminated or truncated:
                 done = True
                 break
-        assert done
+        assert done and len(env.recorded_frames) == 11  # the reset frame and 10 steps
     finally:
         env.close()  # writes the video
-    videos = sorted(tmp_path.glob("vacc-episode-0.mp4"))
-    assert videos and os.path.getsize(videos[0]) > 1000
+    video = folder / "vacc-episode-0.mp4"
+    assert video.is_file() and os.path.getsize(video) > 1000
+    capture = cv2.VideoCapture(str(video))  # read it back, in colour
+    try:
+        frames = []
+        for _ in range(100):  # bounded
+            ok, frame = capture.read()
+            if not ok:
+                break
+            frames.append(frame)
+    finally:
+        capture.release()
+    # moviepy's encoder may drop the last frame of a clip
+    assert len(frames) in (10, 11) and frames[0].shape == (200, 200, 3)
+    assert not np.array_equal(frames[0][..., 0], frames[0][..., 2])
