@@ -15,7 +15,7 @@ import csv
 import math
 import os
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,9 +24,11 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
-from energy import SETTLE_S, evaluate_run
+from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
-from protocol.scenarios import TEST_TRAJECTORIES
+from energy.metrics import Metrics
+from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
+from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
 
@@ -57,6 +59,8 @@ class Row(NamedTuple):
     """Display factor (a share as %); evaluate_run's value is SI or a fraction."""
     follower_only: bool = False
     """Blank for the lead: its log has a 55 m placeholder gap."""
+    better: str = "lower"
+    """Which way is better, as the tables say it: lower, higher, or a bound."""
 
 
 ICE_ROWS = [
@@ -70,10 +74,10 @@ EV_ROWS = [Row("Energy", "energy_kj_per_mi", "kJ/mi", 1)]
 DRIVING_ROWS = [
     Row("Gap RMSE to 55 m", "gap_rmse_55m_m", "m", 3, follower_only=True),
     Row("Collisions", "collisions", "", 0, "sum", follower_only=True),
-    Row("Min gap", "gap_min_m", "m", 2, "min", follower_only=True),
-    Row("Min time-to-collision", "ttc_min_s", "s", 2, "min", follower_only=True),
-    Row("Min time headway", "headway_min_s", "s", 2, "min", follower_only=True),
-    Row("Max speed", "speed_max_mps", "m/s", 2, "max"),
+    Row("Min gap", "gap_min_m", "m", 2, "min", follower_only=True, better="higher"),
+    Row("Min time-to-collision", "ttc_min_s", "s", 2, "min", follower_only=True, better="higher"),
+    Row("Min time headway", "headway_min_s", "s", 2, "min", follower_only=True, better="higher"),
+    Row("Max speed", "speed_max_mps", "m/s", 2, "max", better=f"≤ {DEFAULT_SET_SPEED:g}"),
 ]
 # After --settle (energy.metrics): the ride, judged by ISO 15622 (energy.comfort).
 COMFORT_ROWS = [
@@ -89,21 +93,26 @@ COMBINE: dict[str, Callable[[list[Any]], Any]] = {
     "min": min, "max": max,
 }
 
-# The paper's Tables 3 and 4 (Wei et al. 2019), for comparison.
+# The paper's Tables 3 and 4 (Wei et al. 2019), for comparison. "methods": our method of
+# each column; "keys": the metric of energy.evaluate_run of each row.
 PAPER: dict[str, dict[str, Any]] = {
     "ice": {
         "columns": ["Gap-based DDQN", "Force-based DDQN", "Traditional ACC", "Human"],
+        "methods": ["ddqn-gap", "ddqn-force", "acc", "human"],
         "rows": {
             "Fuel (g/mi)": [169.3, 143.8, 143.8, 198.6],
             "Gap RMSE to 55 m (m)": [3.423, 7.686, 6.667, 6.591],
         },
+        "keys": {"Fuel (g/mi)": "fuel_g_per_mi", "Gap RMSE to 55 m (m)": "gap_rmse_55m_m"},
     },
     "ev": {
         "columns": ["Gap-based DDQN", "Force-based DDQN", "Traditional ACC", "Human"],
+        "methods": ["ddqn-gap", "ddqn-force", "acc", "human"],
         "rows": {
             "Energy (kJ/mi)": [4.914e3, 2.056e3, 1.128e3, 1.500e3],
             "Gap RMSE to 55 m (m)": [5.083, 10.98, 17.44, 5.439],
         },
+        "keys": {"Energy (kJ/mi)": "energy_kj_per_mi", "Gap RMSE to 55 m (m)": "gap_rmse_55m_m"},
     },
 }
 
@@ -195,49 +204,126 @@ def _fmt(value: Any, decimals: int) -> str:
     return f"{value:.{decimals}f}"
 
 
+def seed_text(seeds: Sequence[int]) -> str:
+    """Seeds as ranges, the way ``--seeds`` takes them: [0, 1, 2, 5] -> "0-2,5"."""
+    parts: list[str] = []
+    for s in sorted(seeds):
+        if parts and parts[-1].split("-")[-1] == str(s - 1):
+            parts[-1] = f"{parts[-1].split('-')[0]}-{s}"
+        else:
+            parts.append(str(s))
+    return ",".join(parts)
+
+
+def log_path(out: Path, method: str, trajectory: str, seed: int | None = None) -> Path:
+    """Run log of one run: ``logs/<method>-<trajectory>.csv`` when the evaluation has one
+    seed (``seed`` None), ``logs/<method>-<trajectory>-seed<N>.csv`` when it has several."""
+    return out / "logs" / (f"{method}-{trajectory}.csv" if seed is None else f"{method}-{trajectory}-seed{seed}.csv")
+
+
+class Run(NamedTuple):
+    """One scored run: a method on a trajectory with one seed."""
+
+    method: str
+    trajectory: str
+    seed: int | None
+    """None: the one seed of a single-seed evaluation (its log has no seed in its name)."""
+    log: RunLog
+    metrics: Metrics
+
+
+def score_runs(out: Path, methods: Sequence[str], vehicle: str, settle: float = SETTLE_S, seeds: Sequence[int] | None = None) -> list[Run]:
+    """Read and score every run log of ``out/logs`` that exists (see :func:`log_path`).
+
+    Raises:
+        click.ClickException: a log is invalid.
+    """
+    runs = []
+    for method in methods:
+        for traj in TRAJECTORIES:
+            for seed in seeds if seeds is not None else [None]:
+                path = log_path(out, method, traj, seed)
+                if path.exists():
+                    try:
+                        log = read_run_log(path)
+                    except RunLogError as exc:
+                        raise click.ClickException(str(exc)) from None
+                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle)))
+    return runs
+
+
 def build_tables(
     out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str,
-    settle: float = SETTLE_S,
+    settle: float = SETTLE_S, seeds: Sequence[int] | None = None, runs: list[Run] | None = None,
 ) -> dict[str, Any]:
     """Score every log, write table.md/table.csv; returns the combined metrics per method.
 
+    Over several ``seeds`` each mean row is shown with its 95 % bootstrap confidence
+    interval (:mod:`vacc.stats`), table.md gains an interquartile-mean table, and
+    stats.csv holds every estimate.
+
     Args:
         settle: seconds at the start of each run left out of the comfort rows [s].
+        seeds: the seeds of a multi-seed evaluation; None: one seed.
+        runs: the scored runs, if already at hand (:func:`score_runs`).
     """
     rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS + COMFORT_ROWS
-    per: dict[str, dict[str, dict[str, Any]]] = {}
-    for method in methods:
-        per[method] = {}
-        for traj in TRAJECTORIES:
-            log = out / "logs" / f"{method}-{traj}.csv"
-            if log.exists():
-                per[method][traj] = evaluate_run(log, vehicle, settle_s=settle)
+    if runs is None:
+        runs = score_runs(out, methods, vehicle, settle, seeds)
+    per: dict[str, dict[str, list[Metrics]]] = {m: {} for m in methods}
+    for run in runs:
+        per[run.method].setdefault(run.trajectory, []).append(run.metrics)
     trajs = [t for t in TRAJECTORIES if all(t in per[m] for m in methods)]
+    multi = seeds is not None and len(seeds) > 1
 
-    def value(method: str, traj: str | None, row: Row) -> Any:
+    def samples(method: str, traj: str | None, row: Row) -> list[list[float]]:
+        """The row's values, one list (over seeds) per trajectory; None (undefined on a run) left out."""
+        groups = [[float(r[row.key]) for r in per[method][t] if r[row.key] is not None] for t in ([traj] if traj else trajs)]  # type: ignore[arg-type]
+        return [g for g in groups if g]
+
+    def estimate(method: str, traj: str | None, row: Row, statistic: stats.Statistic = stats.mean) -> stats.Estimate | None:
         if method == "lead" and row.follower_only:
             return None
-        vals = [per[method][t][row.key] for t in ([traj] if traj else trajs)]
-        vals = [v for v in vals if v is not None]  # None: undefined on that run (no closing-in)
-        return COMBINE[row.combine](vals) if vals else None
+        groups = samples(method, traj, row)
+        if not groups:
+            return None
+        if row.combine != "mean" or not multi:  # one seed: no interval to show
+            pooled = [x for g in groups for x in g]
+            v = COMBINE[row.combine](pooled) if row.combine != "mean" else float(statistic(np.array(pooled))[()])
+            return stats.Estimate(v, v, v, len(pooled))
+        return stats.bootstrap_ci(groups, statistic)
 
-    def shown(method: str, traj: str | None, row: Row, decimals: int) -> str:
-        v = value(method, traj, row)
-        return _fmt(None if v is None else v * row.scale, decimals)
+    def value(method: str, traj: str | None, row: Row) -> Any:
+        e = estimate(method, traj, row)
+        if e is None:
+            return None
+        return int(e.value) if row.combine == "sum" else e.value
+
+    def shown(method: str, traj: str | None, row: Row, decimals: int, statistic: stats.Statistic = stats.mean) -> str:
+        e = estimate(method, traj, row, statistic)
+        if e is None:
+            return _fmt(None, decimals)
+        text = _fmt(int(e.value) if row.combine == "sum" else e.value * row.scale, decimals)
+        if multi and row.combine == "mean":
+            text += f" [{_fmt(e.low * row.scale, decimals)}, {_fmt(e.high * row.scale, decimals)}]"
+        return text
 
     cols = [labels[m] for m in methods]
-    lines = [f"# {scenario.upper()} results ({'CMEM ' + vehicle if scenario == 'ice' else 'EV eq. 6 ' + vehicle}), average of {len(trajs)} trajectories", ""]
+    model = "CMEM " + vehicle if scenario == "ice" else "EV eq. 6 " + vehicle
+    over = f"{len(trajs)} trajectories × {len(seeds)} seeds ({seed_text(seeds)})" if multi and seeds else f"{len(trajs)} trajectories"
+    lines = [f"# {scenario.upper()} results ({model}), average of {over}", ""]
 
-    def table(traj: str | None) -> list[str]:
-        t = ["| Metric | " + " | ".join(cols) + " |", "| --- |" + " --- |" * len(cols)]
-        for row in rows:
+    def table(traj: str | None, table_rows: list[Row] = rows, statistic: stats.Statistic = stats.mean) -> list[str]:
+        t = ["| Metric | Better | " + " | ".join(cols) + " |", "| --- | --- |" + " --- |" * len(cols)]
+        for row in table_rows:
             name = f"{row.label} ({row.unit})" if row.unit else row.label
-            t.append(f"| {name} | " + " | ".join(shown(m, traj, row, row.decimals) for m in methods) + " |")
+            t.append(f"| {name} | {row.better} | " + " | ".join(shown(m, traj, row, row.decimals, statistic) for m in methods) + " |")
         return t
 
     lines += table(None)
     lines += [
         "",
+        f"Better: which way a row improves (max speed: at most the set speed, {DEFAULT_SET_SPEED:g} m/s). "
         "Collisions are summed, minimum gap, time-to-collision and headway are minima and the maximum speed is "
         "the maximum over the runs; the rest are means.",
         f"The last {len(COMFORT_ROWS)} rows (comfort) leave out the first {settle:g} s of each run (`--settle`); "
@@ -245,6 +331,23 @@ def build_tables(
         f"≤ {ISO_DECEL_LIMIT_MPS2:g} m/s², mean jerk over any 1 s ≤ {ISO_JERK_LIMIT_MPS3:g} m/s³.",
         "",
     ]
+    mean_rows = [r for r in rows if r.combine == "mean"]
+    if multi:
+        lines[-1:-1] = [
+            f"[low, high]: {stats.CONFIDENCE:.0%} stratified bootstrap confidence interval of the mean "
+            f"(seeds resampled within each trajectory, {stats.N_RESAMPLES} resamples, generator seed "
+            f"{stats.BOOTSTRAP_SEED}); in the per-trajectory tables, over that trajectory's seeds. "
+            "Sums, minima and maxima have no interval.",
+        ]
+        lines += ["## Interquartile mean (rliable)", ""]
+        lines += table(None, mean_rows, stats.iqm)
+        lines += [
+            "",
+            "The mean of the middle half of the runs (each seed on each trajectory a run; "
+            f"⌊n/4⌋ dropped at each end), with its {stats.CONFIDENCE:.0%} stratified bootstrap interval "
+            "(Agarwal et al. 2021). It is robust to one outlying seed.",
+            "",
+        ]
     paper = PAPER[scenario]
     lines += [f"## The paper's Table {'3' if scenario == 'ice' else '4'} (Wei et al. 2019)", ""]
     lines += ["| Metric | " + " | ".join(paper["columns"]) + " |", "| --- |" + " --- |" * len(paper["columns"])]
@@ -259,115 +362,20 @@ def build_tables(
         w.writerow(["trajectory", "metric", "unit", *cols])
         for which in [None, *trajs]:
             for row in rows:
-                w.writerow([which or "mean", row.label, row.unit, *[shown(m, which, row, 6 if row.decimals else 0) for m in methods]])
+                w.writerow([which or "mean", row.label, row.unit, *[_fmt(None if (v := value(m, which, row)) is None else v * row.scale, 6 if row.decimals else 0) for m in methods]])
+    if multi:
+        with (out / "stats.csv").open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["trajectory", "metric", "unit", "method", "statistic", "value", "ci_low", "ci_high", "runs"])
+            for which in [None, *trajs]:
+                for row in rows:
+                    for m in methods:
+                        for name, statistic in [(row.combine, stats.mean)] + ([("iqm", stats.iqm)] if row.combine == "mean" else []):
+                            e = estimate(m, which, row, statistic)
+                            if e is not None:
+                                w.writerow([which or "mean", row.label, row.unit, labels[m], name,
+                                            *(f"{x * row.scale:.6g}" for x in e[:3]), e.n])  # fmt: skip
     return {m: {row.key: value(m, None, row) for row in rows} for m in methods}
-
-
-def plot_runs(out: Path, methods: list[str], labels: dict[str, str], traj: str = "test-1") -> None:
-    """fig_gap.png and fig_speed.png for one trajectory, like the paper's Fig. 5c/5d."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    logs = {m: np.genfromtxt(out / "logs" / f"{m}-{traj}.csv", delimiter=",", names=True) for m in methods}
-    fig, ax = plt.subplots(figsize=(9, 4))
-    for m, d in logs.items():
-        if m != "lead":
-            ax.plot(d["t"], d["gap"], label=labels[m], lw=1)
-    ax.axhline(55.0, color="k", ls="--", lw=0.8, label="desired gap 55 m")
-    ax.set(xlabel="time [s]", ylabel="gap [m]", title=f"Gap, {traj}")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig_gap.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4))
-    any_log = next(iter(logs.values()))
-    ax.plot(any_log["t"], any_log["v_lead"], color="k", lw=1.5, label="lead vehicle")
-    for m, d in logs.items():
-        if m != "lead":
-            ax.plot(d["t"], d["v_host"], label=labels[m], lw=1)
-    ax.set(xlabel="time [s]", ylabel="speed [m/s]", title=f"Speed, {traj}")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "fig_speed.png", dpi=110)
-    plt.close(fig)
-
-
-def plot_pareto(out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str, settle: float = SETTLE_S) -> None:
-    """fig_pareto.png/.pdf: gap RMSE against energy, one point per method, coloured by the
-    share of 1-s windows over ISO 15622's jerk limit; one panel per trajectory and their mean.
-
-    Lower left is better on both axes; a pale point rides more comfortably than a dark one.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    energy_key, energy_label = ("fuel_g_per_mi", "fuel [g/mi]") if scenario == "ice" else ("energy_kj_per_mi", "energy [kJ/mi]")
-    followers = [m for m in methods if m != "lead"]
-    points: dict[str, dict[str, tuple[float, float, float]]] = {}
-    for traj in TRAJECTORIES:
-        for m in followers:
-            log = out / "logs" / f"{m}-{traj}.csv"
-            if log.exists():
-                r: dict[str, Any] = evaluate_run(log, vehicle, settle_s=settle)
-                points.setdefault(traj, {})[m] = (float(r[energy_key]), float(r["gap_rmse_55m_m"]), float(r["iso_jerk_window_share"] or 0.0))
-    complete = [t for t in points if all(m in points[t] for m in followers)]
-    if complete:
-        points["mean of " + str(len(complete))] = {m: tuple(float(np.mean([points[t][m][i] for t in complete])) for i in range(3)) for m in followers}  # type: ignore[misc]
-    panels = list(points) or ["no runs"]
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.4), squeeze=False, sharey=False)
-    markers = dict(zip(followers, "osD^vP*X", strict=False))
-    sc = None
-    for ax, name in zip(axes[0], panels, strict=True):
-        if name not in points:
-            ax.text(0.5, 0.5, f"no runs in {out / 'logs'}", ha="center", va="center", transform=ax.transAxes)
-            continue
-        for m, (e, rmse, jerk) in points[name].items():
-            sc = ax.scatter([e], [rmse], c=[100.0 * jerk], cmap="viridis_r", vmin=0.0, vmax=100.0, marker=markers[m], s=60, edgecolors="k", label=labels[m])
-        ax.set(title=name, xlabel=energy_label)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("gap RMSE to 55 m [m]")
-    if sc is not None:
-        axes[0][0].legend(fontsize=7, loc="best")
-        fig.colorbar(sc, ax=axes[0].tolist(), label=f"1-s windows over {ISO_JERK_LIMIT_MPS3:g} m/s³ [%]")
-    fig.suptitle(f"{scenario.upper()}: gap against energy (lower left is better)", fontsize=10)
-    for ext in ("png", "pdf"):
-        fig.savefig(out / f"fig_pareto.{ext}", dpi=110)
-    plt.close(fig)
-
-
-def plot_training(out: Path, models: Path, scenario: str) -> None:
-    """fig_training.png from the shipped models' training curves (``<model>.curve.csv``: step,avg_reward;
-    ``#`` lines are comments)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 4))
-    found = False
-    for reward in ("gap", "force", "eco"):
-        curve = models / f"{scenario}-{reward}.curve.csv"
-        if curve.exists():
-            rows = [r for r in csv.DictReader(line for line in curve.open() if not line.startswith("#"))]
-            try:
-                steps = [int(r["step"]) for r in rows]
-                values = [float(r["avg_reward"]) for r in rows]
-            except (KeyError, TypeError, ValueError):
-                raise click.ClickException(f"{curve}: expected columns step,avg_reward") from None
-            ax.plot(steps, values, label=f"{reward}-based DDQN")
-            found = True
-    if not found:
-        ax.text(0.5, 0.5, f"no training curves shipped in {models}", ha="center", va="center", transform=ax.transAxes)
-    ax.set(xlabel="training step", ylabel="average reward", title=f"Training, {scenario.upper()} (like Fig. 5a/5b)")
-    if found:
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "fig_training.png", dpi=110)
-    plt.close(fig)
 
 
 def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
@@ -382,6 +390,30 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
     return files
 
 
+SAFETY_SEEDS = "0-9"
+"""The safety suite's seeds when neither --seed nor --seeds is given (the paper suite's: 0)."""
+
+
+def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
+    """The episode seeds of --seed (one) or --seeds (a range or list), whichever is given.
+
+    Raises:
+        click.BadParameter: both are given, or --seeds is not a seed list.
+    """
+    from vacc.safety import parse_seeds
+
+    if seed is not None and seeds is not None:
+        raise click.BadParameter(f"give --seed {seed} or --seeds {seeds}, not both (--seed N is --seeds N)", param_hint="--seed/--seeds")
+    if seed is not None:
+        if seed < 0:
+            raise click.BadParameter(f"{seed} is negative; a seed is >= 0", param_hint="--seed")
+        return [seed]
+    try:
+        return parse_seeds(seeds if seeds is not None else SAFETY_SEEDS if suite == "safety" else "0")
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--seeds") from None
+
+
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
@@ -390,25 +422,25 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 @click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")
 @click.option("--vehicle", default=None, type=click.Choice(["corolla", "average", "leaf"]), help="Energy model; default corolla (ICE) or leaf (EV).")
 @click.option("--duration", default=None, type=click.FloatRange(min=0.5), help="Drive only this many seconds of each trajectory.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Episode seed (initial conditions, traffic).")
+@click.option("--seeds", default=None, metavar="SEEDS", help=f"Episode seeds, a range or a list: 0-9, 0,3,5 or 0-2,7. Over several, the paper suite's tables give means with {stats.CONFIDENCE:.0%} bootstrap intervals and the interquartile mean, and the figures the spread over seeds. Default: 0 (paper), {SAFETY_SEEDS} (safety).")
+@click.option("--seed", default=None, type=int, help="One episode seed (initial conditions, traffic, scenery); the same as --seeds N.")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table.")
-@click.option("--seeds", default="0-9", show_default=True, help="--suite safety: episode seeds, e.g. 0-9 or 0,3,5.")
-def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seed: int, jobs: int, settle: float, suite: str, seeds: str) -> None:
+def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
-    (or, with --suite safety, drive every lead scenario and write a pass/fail table)."""
-    if suite == "safety":
-        from vacc.safety import parse_seeds, run_suite
+    (or, with --suite safety, drive every lead scenario and write a pass/fail table).
 
-        try:
-            seed_list = parse_seeds(seeds)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--seeds") from None
+    Returns the combined metrics per method of the paper suite (see build_tables).
+    """
+    seed_list = _seed_list(seed, seeds, suite)
+    if suite == "safety":
+        from vacc.safety import run_suite
+
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in ("ice", "ev")}
         click.echo(run_suite(Path(out), found, seed_list, jobs))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
-        return
+        return None
     if methods is None:
         methods = ",".join(m for m in METHODS if m not in OPTIONAL or (Path(models) / f"{scenario}-{m.removeprefix('ddqn-')}.pt").is_file())
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
@@ -416,11 +448,14 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     if unknown:
         raise click.BadParameter(f"unknown methods {unknown}; choose from {list(METHODS)}", param_hint="--methods")
     files = _parse_human_files(human_files)
-    models_dir = Path(models)
+    multi = len(seed_list) > 1
+    if files and multi:
+        raise click.BadParameter("a recorded drive is of one seed; give --human-file with one --seed", param_hint="--human-file")
+    models_path = Path(models)
     checkpoints = {}
     for m in chosen:
         if m.startswith("ddqn-"):
-            path = models_dir / f"{scenario}-{m.removeprefix('ddqn-')}.pt"
+            path = models_path / f"{scenario}-{m.removeprefix('ddqn-')}.pt"
             if not path.is_file():
                 raise click.ClickException(
                     f"model file {path} not found. Train it with: vacc train --reward {m.removeprefix('ddqn-')} "
@@ -432,16 +467,31 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     labels["human"] = "Human (recorded)" if files else HDM_LABEL
     out_dir = Path(out)
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
+    named = seed_list if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
     work = [
-        Job(m, t, scenario, seed, str(out_dir / "logs" / f"{m}-{t}.csv"), duration, checkpoints.get(m), files.get(t) if m == "human" else None)
+        Job(m, t, scenario, s, str(log_path(out_dir, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None)
         for m in chosen
         for t in TRAJECTORIES
+        for s in seed_list
     ]
-    drive_jobs(work, jobs, f"evaluate {scenario}")
+    drive_jobs(work, jobs, f"evaluate {scenario}" + (f", seeds {seed_text(seed_list)}" if multi else ""))
     veh = vehicle or DEFAULT_VEHICLE[scenario]
-    build_tables(out_dir, scenario, chosen, labels, veh, settle)
-    plot_runs(out_dir, chosen, labels)
-    plot_training(out_dir, models_dir, scenario)
-    plot_pareto(out_dir, scenario, chosen, labels, veh, settle)
-    click.echo((out_dir / "table.md").read_text().split("\n## ")[0])
-    click.echo(f"Wrote {out_dir}/table.md, table.csv, fig_gap.png, fig_speed.png, fig_training.png, fig_pareto.png/.pdf and logs/")
+    runs = score_runs(out_dir, chosen, veh, settle, named)
+    result = build_tables(out_dir, scenario, chosen, labels, veh, settle, named, runs)
+    from vacc import figures
+
+    written = [
+        *figures.plot_runs(out_dir, runs, labels, scenario),
+        figures.plot_comfort(out_dir, runs, labels, scenario, settle),
+        figures.plot_emissions(out_dir, runs, labels, scenario),
+        figures.plot_headway(out_dir, runs, labels, scenario),
+        figures.plot_pareto(out_dir, scenario, chosen, labels, veh, settle, seeds=named, runs=runs),
+        figures.plot_training(out_dir, models_path, scenario),
+    ]
+    click.echo((out_dir / "table.md").read_text().split("\n## The paper")[0].rstrip())
+    for w in written:
+        if w.empty:
+            click.echo(f"{w.name}: nothing to plot: {w.empty}")
+    tables = "table.md, table.csv" + (", stats.csv" if multi else "")
+    click.echo(f"\nWrote {out_dir}/{tables}, {', '.join(w.name for w in written)} (.png and .pdf each) and logs/")
+    return result
