@@ -161,3 +161,64 @@ def test_bad_settle_is_a_one_line_error(tmp_path, value):
     result = vacc("evaluate", "--out", str(tmp_path / "o"), "--methods", "acc", "--settle", value)
     assert result.returncode == 2 and "Invalid value for '--settle': must be a finite number >= 0" in result.stderr
     assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
+
+
+def test_seeds_give_intervals_and_the_iqm(tmp_path):
+    """--seeds 0-1: a log per seed, means with bootstrap intervals equal to the logs' own, the same tables twice."""
+    from energy import evaluate_run
+    from vacc.evaluate import LABELS, build_tables
+    from vacc.stats import iqm
+
+    out = tmp_path / "o"
+    result = vacc("evaluate", "--out", str(out), "--methods", "lead,acc", "--seeds", "0-1", "--duration", "2", "--jobs", "2", "--settle", "0.5")
+    assert result.returncode == 0, result.stderr
+    logs = sorted(p.name for p in (out / "logs").iterdir())
+    assert logs == sorted(f"{m}-test-{i}-seed{s}.csv" for m in ("lead", "acc") for i in range(1, 5) for s in (0, 1))
+    md = (out / "table.md").read_text()
+    assert "average of 4 trajectories × 2 seeds (0-1)" in md and "## Interquartile mean (rliable)" in md
+    assert "| Fuel (g/mi) | lower | " in md and "stratified bootstrap" in md
+    fuel = {(t, s): float(evaluate_run(out / "logs" / f"acc-{t}-seed{s}.csv", "corolla")["fuel_g_per_mi"]) for t in ("test-1", "test-2", "test-3", "test-4") for s in (0, 1)}  # type: ignore[arg-type]
+    stats = {(r["trajectory"], r["metric"], r["method"], r["statistic"]): r for r in csv.DictReader((out / "stats.csv").open())}
+    mean = stats[("mean", "Fuel", "Traditional ACC", "mean")]
+    assert float(mean["value"]) == pytest.approx(np.mean(list(fuel.values())), rel=1e-5)
+    assert float(mean["ci_low"]) <= float(mean["value"]) <= float(mean["ci_high"]) and mean["runs"] == "8"
+    assert float(stats[("mean", "Fuel", "Traditional ACC", "iqm")]["value"]) == pytest.approx(float(iqm(np.array(list(fuel.values())))), rel=1e-5)
+    assert float(stats[("test-2", "Fuel", "Traditional ACC", "mean")]["value"]) == pytest.approx((fuel["test-2", 0] + fuel["test-2", 1]) / 2, rel=1e-5)
+    assert stats[("mean", "Min gap", "Traditional ACC", "min")]["runs"] == "8"
+    for name in ("fig_gap", "fig_speed", "fig_comfort", "fig_emissions", "fig_headway", "fig_pareto", "fig_training"):
+        for ext in ("png", "pdf"):
+            assert (out / f"{name}.{ext}").stat().st_size > 1000, (name, ext)
+    build_tables(out, "ice", ["lead", "acc"], LABELS, "corolla", settle=0.5, seeds=[0, 1])
+    assert (out / "table.md").read_text() == md  # the seeded bootstrap gives the same intervals
+
+
+def test_seed_options():
+    from vacc.evaluate import _seed_list
+
+    assert _seed_list(None, None, "paper") == [0]
+    assert _seed_list(None, None, "safety") == list(range(10))
+    assert _seed_list(3, None, "safety") == [3]
+    assert _seed_list(None, "0-2,7", "paper") == [0, 1, 2, 7]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--seed", "1", "--seeds", "0-3"], "give --seed 1 or --seeds 0-3, not both"),
+        (["--seeds", "3-1"], "increasing range"),
+        (["--seeds", "x"], "not a seed list"),
+        (["--seed", "-1"], "negative"),
+        (["--suite", "safety", "--seeds", "1-"], "not a seed list"),
+    ],
+)
+def test_bad_seeds_are_one_line_errors(tmp_path, args, message):
+    result = vacc("evaluate", "--out", str(tmp_path / "o"), "--methods", "acc", *args)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
+
+
+def test_a_recorded_drive_is_one_seed(tmp_path):
+    drive = tmp_path / "drive.csv"
+    drive.write_text("")
+    result = vacc("evaluate", "--out", str(tmp_path / "o"), "--methods", "human", "--seeds", "0-1", "--human-file", f"test-1={drive}")
+    assert result.returncode == 2 and "a recorded drive is of one seed" in result.stderr
