@@ -10,17 +10,23 @@ Kept apart from the env and the network, as highway-env keeps ``action.py``.
   (0.02 of force is 0.07-0.11 m/s^2 per 0.1 s, about 1 m/s^3); one large brake step
   stays for emergencies. Since the force is then part of the state, the policy
   observes its own previous outputs, with the driver's set speed, as ``controls``.
+  Anti-windup: where the vehicle could not follow the held force (the speed limiter at
+  the set speed, or a standstill under the brake), the held force drops to the one the
+  vehicle achieved, as a production controller's integrator does; else a policy could
+  sit at full throttle on the limiter and need a second to come off it.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 import numpy as np
 
-from protocol.constants import FORCES, N_ACTIONS
+from protocol.constants import A_MAX, A_MIN, FORCES, N_ACTIONS
+from sim_server.vehicle import accel_of_force
 
-__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "ActionType", "ForceLevels", "ForceSteps", "make_action_type"]
+__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "make_action_type"]
 
 ACTION_TYPES = ("levels", "steps")
 # Force increments of the "steps" type: fine near zero, one hard brake (a stopped car
@@ -29,6 +35,14 @@ FORCE_STEPS = (-0.5, -0.1, -0.02, 0.0, 0.02, 0.1)
 # The "steps" type's controls, per stacked frame: the force held when the frame was taken
 # (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
 CONTROLS = ("force", "set_speed")
+FORCE_GRID = 0.02  # every force the "steps" type holds is a multiple of this
+WINDUP_TOLERANCE = 1e-3  # [m/s^2] achieved acceleration this far short of the command: limited
+
+
+def force_of_accel(a: float) -> float:
+    """Invert the simulator's force map: acceleration [m/s^2] to u in [-1, 1]."""
+    u = a / A_MAX if a >= 0.0 else -a / A_MIN
+    return min(1.0, max(-1.0, u))
 
 
 class ActionType(Protocol):
@@ -41,6 +55,8 @@ class ActionType(Protocol):
     def reset(self) -> None: ...
 
     def force(self, action: int) -> float: ...
+
+    def observe(self, accel: float) -> None: ...
 
     def controls(self, set_speed: float) -> np.ndarray | None: ...
 
@@ -55,6 +71,9 @@ class ForceLevels:
 
     def force(self, action: int) -> float:
         return float(FORCES[action])
+
+    def observe(self, accel: float) -> None:
+        pass
 
     def controls(self, set_speed: float) -> None:
         return None
@@ -75,6 +94,13 @@ class ForceSteps:
         # rounded to the 0.02 grid, so that a long run of steps never drifts off it
         self.u = float(np.clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0))
         return self.u
+
+    def observe(self, accel: float) -> None:
+        """Anti-windup: the acceleration [m/s^2] the last step achieved; where it fell short
+        of the held force's, hold the achieved force instead (rounded toward zero, on the grid)."""
+        commanded = accel_of_force(self.u)
+        if abs(accel) < abs(commanded) - WINDUP_TOLERANCE:
+            self.u = round(math.trunc(round(force_of_accel(accel) / FORCE_GRID, 6)) * FORCE_GRID, 2)
 
     def controls(self, set_speed: float) -> np.ndarray:
         """The controls of the frame the last force produced: (force, set speed)."""

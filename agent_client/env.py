@@ -197,6 +197,7 @@ class VisionACCEnv(gym.Env):
         if image is None:  # the session asked for frames; a server that drops them is broken
             raise FatalSessionError("the server sent an observation without a camera image")
         self._last_image = image
+        self.actions.observe(float(obs["accel"]))  # anti-windup of a held force
         controls = self.actions.controls(float(obs["set_speed"])) if self.actions.n_controls else None
         return self._stacker.push(pre.preprocess(image, self.zoom), obs["v_host"], controls)
 

@@ -38,18 +38,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from protocol.constants import A_MAX, A_MIN
+from agent_client.actions import force_of_accel
 from protocol.scenarios import DEFAULT_SET_SPEED
 
 __all__ = ["AccController", "force_of_accel"]
 
 V_STANDING = 0.1  # [m/s] a lead slower than this stands: stop d_safe behind it
-
-
-def force_of_accel(a: float) -> float:
-    """Invert the simulator's force map: acceleration [m/s^2] to u in [-1, 1]."""
-    u = a / A_MAX if a >= 0.0 else -a / A_MIN
-    return min(1.0, max(-1.0, u))
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,9 @@ class DDQNController:
         image = Session.image(obs)
         if image is None:
             raise ValueError("the ddqn controller needs camera images; open the session with image_format='gray'")
-        controls = self.actions.controls(float(obs["set_speed"])) if self.actions.n_controls else None
+        controls = None
+        if self.actions.n_controls:
+            self.actions.observe(float(obs["accel"]))  # anti-windup, as in the env
+            controls = self.actions.controls(float(obs["set_speed"]))
         stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
         return self.actions.force(self.act(stacked))

@@ -44,7 +44,7 @@ def test_env_observes_the_held_force_and_the_set_speed():
         env = VisionACCEnv(addr, episode_seconds=2.0, action="steps", set_speed=25.0, stack_stride=2)
         try:
             assert env.action_space.n == len(FORCE_STEPS)
-            obs, info = env.reset(seed=4)
+            obs, info = env.reset(options={"seed": 4, "host_speed": 15.0})  # well below the set speed: no limiter
             assert set(obs) == {"frames", "speeds", "controls"} and env.observation_space.contains(obs)
             assert obs["controls"].tolist() == [[0.0, 25.0]] * 8
             up = FORCE_STEPS.index(0.1)
@@ -146,3 +146,32 @@ def test_steps_policy_on_a_scenario_mix_resumes_exactly(tmp_path):
     assert result.exit_code == 0, result.output
     forces = np.loadtxt(log, delimiter=",", skiprows=1, usecols=6)
     assert np.all(np.abs(np.diff(forces)) <= 0.5 + 1e-9)
+
+
+def test_anti_windup_holds_the_force_the_vehicle_achieved():
+    steps = ForceSteps()
+    for _ in range(5):
+        steps.force(FORCE_STEPS.index(0.1))
+    steps.observe(0.5 * 3.5)  # the vehicle followed: nothing changes
+    assert steps.u == 0.5
+    steps.observe(0.0)  # the limiter held the speed
+    assert steps.u == 0.0
+    steps.force(0)  # -0.5: braking at 2.75 m/s^2
+    steps.observe(-1.3)  # it stopped part-way through the step
+    assert steps.u == -0.22  # 1.3 / 5.5 = 0.236, toward zero on the 0.02 grid
+
+
+def test_env_force_never_winds_up_on_the_speed_limiter():
+    from agent_client.env import VisionACCEnv
+    from agent_client.launcher import local_server
+
+    with local_server() as addr:
+        env = VisionACCEnv(addr, episode_seconds=2.0, action="steps", trajectory="constant")
+        try:
+            env.reset(options={"seed": 1, "host_speed": 20.0, "set_speed": 20.0, "gap": 150.0})
+            for _ in range(6):  # full throttle asked for, at the set speed
+                obs, *_, info = env.step(FORCE_STEPS.index(0.1))
+            assert info["v_host"] == pytest.approx(20.0)
+            assert obs["controls"][-1, 0] == 0.0  # the held force is the achieved one
+        finally:
+            env.close()
