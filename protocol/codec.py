@@ -19,7 +19,7 @@ from typing import Any
 import msgpack
 
 from protocol.errors import DecodeError, LimitError, ProtocolError, SchemaError
-from protocol.messages import validate
+from protocol.messages import PROTOCOL_VERSION, validate
 
 __all__ = [
     "MAX_MESSAGE_BYTES",
@@ -221,13 +221,14 @@ def encode(msg: dict[str, Any]) -> bytes:
     return data
 
 
-def decode(data: bytes | bytearray | memoryview, check: Callable[[int], None] | None = None) -> dict[str, Any]:
+def decode(data: bytes | bytearray | memoryview, check: Callable[[int], None] | None = None, version: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """Check the structure of one message (:func:`scan`), unpack it, check its schema.
 
     Args:
         data: the whole message.
         check: called with the message's object count before anything is
             unpacked; it may raise (a per-source budget does).
+        version: the protocol version it came in (its schema's).
 
     Raises:
         LimitError: if the bytes, or a length, depth or object count inside them,
@@ -261,4 +262,4 @@ def decode(data: bytes | bytearray | memoryview, check: Callable[[int], None] | 
         raise DecodeError(f"not msgpack: {text}") from exc
     except (TypeError, msgpack.UnpackException, RecursionError) as exc:
         raise DecodeError(f"not msgpack: {exc}") from exc
-    return validate(value)
+    return validate(value, version)

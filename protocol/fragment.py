@@ -3,7 +3,7 @@
 Every datagram starts with a 16-byte big-endian header::
 
     magic   2s  b"VC"
-    version u8  PROTOCOL_VERSION
+    version u8  PROTOCOL_VERSION (a server also takes the older SUPPORTED_VERSIONS)
     flags   u8  FLAG_MAC | FLAG_PADDED; other bits reserved (0, ignored)
     msg_id  u32 sender's message counter; fragments of one message share it
     index   u16 this fragment's index, 0..count-1
@@ -58,7 +58,9 @@ FLAG_MAC = 0x01  # the datagram ends in a sequence number and a MAC (protocol.au
 FLAG_PADDED = 0x02  # a single fragment followed by padding to ignore
 
 
-def fragment(payload: bytes, msg_id: int, max_datagram: int = DEFAULT_DATAGRAM, *, flags: int = 0, trailer: int = 0) -> list[bytes]:
+def fragment(
+    payload: bytes, msg_id: int, max_datagram: int = DEFAULT_DATAGRAM, *, flags: int = 0, trailer: int = 0, version: int = PROTOCOL_VERSION
+) -> list[bytes]:
     """Split one encoded message into datagrams.
 
     Args:
@@ -67,6 +69,8 @@ def fragment(payload: bytes, msg_id: int, max_datagram: int = DEFAULT_DATAGRAM, 
         max_datagram: largest datagram to produce [bytes], header and trailer included.
         flags: header flags of every fragment.
         trailer: bytes to leave room for after each fragment (a MAC seal).
+        version: the protocol version in the header (a server answers an older
+            client in its own version).
 
     Raises:
         LimitError: if the message is too long for the fragment count or size limit.
@@ -79,13 +83,13 @@ def fragment(payload: bytes, msg_id: int, max_datagram: int = DEFAULT_DATAGRAM, 
     msg_id &= 0xFFFFFFFF
     chunk = max_datagram - HEADER_BYTES - trailer
     if total <= chunk:
-        return [HEADER.pack(MAGIC, PROTOCOL_VERSION, flags, msg_id, 0, 1, total) + payload]
+        return [HEADER.pack(MAGIC, version, flags, msg_id, 0, 1, total) + payload]
     count = -(-total // chunk)
     if count > MAX_FRAGMENTS:
         raise LimitError(f"message needs {count} fragments, more than {MAX_FRAGMENTS}")
     view = memoryview(payload)
     return [
-        HEADER.pack(MAGIC, PROTOCOL_VERSION, flags, msg_id, i, count, total)
+        HEADER.pack(MAGIC, version, flags, msg_id, i, count, total)
         + view[i * chunk : (i + 1) * chunk]
         for i in range(count)
     ]
@@ -104,12 +108,13 @@ def pad(datagram: bytes, size: int) -> bytes:
     return datagram[:3] + bytes([datagram[3] | FLAG_PADDED]) + datagram[4:] + bytes(size - len(datagram))
 
 
-def parse_header(datagram: bytes, max_total: int = MAX_MESSAGE_BYTES) -> tuple[int, int, int, int]:
+def parse_header(datagram: bytes, max_total: int = MAX_MESSAGE_BYTES, versions: tuple[int, ...] = (PROTOCOL_VERSION,)) -> tuple[int, int, int, int]:
     """Check a datagram's header.
 
     Args:
         datagram: the datagram, header included (a seal already removed).
         max_total: [bytes] largest whole message this receiver accepts.
+        versions: the protocol versions this receiver speaks.
 
     Returns:
         ``(msg_id, index, count, total)``.
@@ -125,8 +130,8 @@ def parse_header(datagram: bytes, max_total: int = MAX_MESSAGE_BYTES) -> tuple[i
     magic, version, flags, msg_id, index, count, total = HEADER.unpack_from(datagram)
     if magic != MAGIC:
         raise DecodeError(f"bad magic {magic!r}")
-    if version != PROTOCOL_VERSION:
-        raise VersionError(f"protocol version {version}, this side speaks {PROTOCOL_VERSION}")
+    if version not in versions:
+        raise VersionError(f"protocol version {version}, this side speaks {'/'.join(map(str, versions))}")
     if count == 0 or index >= count:
         raise FragmentError(f"fragment index {index} of count {count}")
     if total > max_total:
@@ -150,6 +155,7 @@ def parse_header(datagram: bytes, max_total: int = MAX_MESSAGE_BYTES) -> tuple[i
 class _Partial:
     count: int
     total: int
+    version: int
     started: float  # [s] monotonic time of the first fragment
     parts: dict[int, bytes] = field(default_factory=dict)
     size: int = 0  # [bytes] held so far
@@ -173,6 +179,7 @@ class Reassembler:
         max_pending_per_peer: most unfinished messages of one peer.
         max_bytes_per_peer: most unfinished bytes of one peer (default: one largest
             message).
+        versions: the protocol versions accepted (a server speaks older ones too).
     """
 
     def __init__(
@@ -184,7 +191,9 @@ class Reassembler:
         max_message: int = MAX_MESSAGE_BYTES,
         max_pending_per_peer: int = 4,
         max_bytes_per_peer: int | None = None,
+        versions: tuple[int, ...] = (PROTOCOL_VERSION,),
     ):
+        self.versions = versions
         self.max_pending = max_pending
         self.max_bytes = max_bytes
         self.timeout = timeout
@@ -222,19 +231,20 @@ class Reassembler:
             DecodeError, VersionError, FragmentError, LimitError: as
             :func:`parse_header`, or on a fragment inconsistent with its message.
         """
-        msg_id, index, count, total = parse_header(datagram, self.max_message)
+        msg_id, index, count, total = parse_header(datagram, self.max_message, self.versions)
+        version = datagram[2]
         if count == 1:
             return datagram[HEADER_BYTES : HEADER_BYTES + total]
         self._expire(now)
         key = (peer, msg_id)
         part = self._pending.get(key)
         if part is None:
-            part = _Partial(count, total, now)
+            part = _Partial(count, total, version, now)
             self._pending[key] = part
             self._peer_count[peer] = self._peer_count.get(peer, 0) + 1
-        elif part.count != count or part.total != total:
+        elif part.count != count or part.total != total or part.version != version:
             self._drop(key)
-            raise FragmentError(f"fragment {index} of message {msg_id} changes its count or length")
+            raise FragmentError(f"fragment {index} of message {msg_id} changes its count, length or version")
         body = datagram[HEADER_BYTES:]
         held = part.parts.get(index)
         if held is not None:

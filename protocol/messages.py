@@ -18,21 +18,29 @@ from protocol.errors import SchemaError
 
 __all__ = [
     "PROTOCOL_VERSION",
+    "SUPPORTED_VERSIONS",
+    "FIELDS_SINCE",
     "MESSAGE_TYPES",
     "ErrorCode",
     "FATAL_CODES",
     "SCHEMAS",
     "validate",
+    "schema",
+    "for_version",
     "make",
     "error",
 ]
 
 # 2: reset gained host_speed, gap and set_speed; obs gained set_speed; lead
 #    scenarios as trajectory names (protocol/scenarios.py).
-PROTOCOL_VERSION = 2
+# 3: welcome gained seed_salt.
+PROTOCOL_VERSION = 3
+# A server also speaks 2 (cheap: only the welcome differs), so older clients keep working.
+SUPPORTED_VERSIONS = (2, 3)
 
 # Image formats a client may ask for in the handshake.
 IMAGE_FORMATS = ("none", "rgb", "gray")
+MIN_IMAGE_SIDE = 8  # [px] smallest width or height the camera renders
 MAX_IMAGE_SIDE = 1024  # [px] largest width or height a client may ask for
 TOKEN_BYTES = 16  # session token length
 NONCE_BYTES = 8  # handshake nonce length
@@ -41,12 +49,14 @@ NONCE_BYTES = 8  # handshake nonce length
 class ErrorCode(IntEnum):
     """Error codes carried by ``error`` messages.
 
-    Recoverable codes leave the session as it was; fatal ones end it (the client
-    must start a new handshake).
+    Recoverable codes leave the session as it was. A fatal one means the request's
+    session does not exist on the server after the reply: it never did
+    (BAD_VERSION, NO_SESSION) or the server ended it (INTERNAL); the client starts
+    a new handshake, which is answered at once unless another session holds the world.
     """
 
-    BAD_MESSAGE = 1  # undecodable or wrong shape; dropped datagrams are only counted
-    BAD_VERSION = 2  # handshake with another protocol version (fatal)
+    BAD_MESSAGE = 1  # a bad hello, or a whole message that is not msgpack, breaks a limit or its schema
+    BAD_VERSION = 2  # a datagram or hello of a version the server does not speak (fatal)
     NO_SESSION = 3  # unknown or expired session token (fatal)
     BUSY = 4  # the server's one world is in use by another session
     BAD_FRAME = 5  # step for a frame that is neither current nor the last answered
@@ -94,6 +104,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "image_height": _INT,
         "max_datagram": _INT,  # [bytes] what the server will send
         "session_timeout": _FLOAT,  # [s] idle time after which the session is freed
+        "seed_salt": _INT,  # the server's --seed as mixed into every episode seed (version 3)
     },
     # client -> server: start episode `episode` (answered with obs frame 0)
     "reset": {
@@ -152,6 +163,25 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
 
 MESSAGE_TYPES = frozenset(SCHEMAS)
 
+# (type, field) -> the version that added it; older versions' messages lack it.
+FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3}
+
+
+def schema(kind: str, version: int = PROTOCOL_VERSION) -> dict[str, tuple[str, ...]] | None:
+    """The fields of message type ``kind`` in protocol ``version``, or None for an unknown type."""
+    fields = SCHEMAS.get(kind)
+    if fields is None or version >= PROTOCOL_VERSION:
+        return fields
+    return {k: v for k, v in fields.items() if FIELDS_SINCE.get((kind, k), 0) <= version}
+
+
+def for_version(msg: dict[str, Any], version: int) -> dict[str, Any]:
+    """``msg`` without the fields that ``version`` does not have (to answer an older peer)."""
+    if version >= PROTOCOL_VERSION:
+        return msg
+    kind = msg["type"]
+    return {k: v for k, v in msg.items() if FIELDS_SINCE.get((kind, k), 0) <= version}
+
 
 def _wire_type(value: Any) -> str:
     # bool before int: bool is a subclass of int in Python.
@@ -172,11 +202,12 @@ def _wire_type(value: Any) -> str:
     return type(value).__name__
 
 
-def validate(msg: Any) -> dict[str, Any]:
+def validate(msg: Any, version: int = PROTOCOL_VERSION) -> dict[str, Any]:
     """Check a decoded value against :data:`SCHEMAS`.
 
     Args:
         msg: the value msgpack produced.
+        version: the protocol version it was sent in (its datagram header's).
 
     Returns:
         The same map, typed as a message.
@@ -188,14 +219,14 @@ def validate(msg: Any) -> dict[str, Any]:
     if not isinstance(msg, dict):
         raise SchemaError(f"message is a {_wire_type(msg)}, not a map")
     kind = msg.get("type")
-    schema = SCHEMAS.get(kind) if isinstance(kind, str) else None
-    if schema is None:
+    fields = schema(kind, version) if isinstance(kind, str) else None
+    if fields is None:
         raise SchemaError(f"unknown message type {kind!r}")
-    if len(msg) != len(schema) + 1:
-        extra = sorted(set(map(str, msg)) - set(schema) - {"type"})
-        missing = sorted(set(schema) - set(msg))
+    if len(msg) != len(fields) + 1:
+        extra = sorted(set(map(str, msg)) - set(fields) - {"type"})
+        missing = sorted(set(fields) - set(msg))
         raise SchemaError(f"{kind}: unknown fields {extra}, missing fields {missing}")
-    for name, allowed in schema.items():
+    for name, allowed in fields.items():
         if name not in msg:
             raise SchemaError(f"{kind}: missing field {name!r}")
         got = _wire_type(msg[name])

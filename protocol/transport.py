@@ -30,6 +30,7 @@ from protocol.fragment import (
     fragment,
     pad,
 )
+from protocol.messages import PROTOCOL_VERSION
 
 __all__ = ["Endpoint", "Received", "DecodeBudget", "SOCKET_BUFFER_BYTES", "is_loopback"]
 
@@ -60,13 +61,18 @@ class Received:
 
     ``size`` is what the sender spent on it [bytes]: the datagram, or for a
     fragmented message its whole length with a header; a reply to an
-    unauthenticated peer must not be larger.
+    unauthenticated peer must not be larger. ``version`` is the protocol version
+    of its header. ``bad_message`` marks an error in a whole message's content
+    (not msgpack, over a limit inside it, wrong fields or types): the sender
+    meant a message and may be told what was wrong with it.
     """
 
     addr: Address
     msg: dict[str, Any] | None = None
     error: ProtocolError | None = None
     size: int = 0
+    version: int = PROTOCOL_VERSION
+    bad_message: bool = False
 
 
 class DecodeBudget:
@@ -105,6 +111,7 @@ class Endpoint:
         max_message: [bytes] largest whole message accepted (a server takes
             requests of at most ``codec.MAX_REQUEST_BYTES``).
         peer: accept datagrams from this address only (a client's server).
+        versions: protocol versions accepted (a server's ``SUPPORTED_VERSIONS``).
     """
 
     def __init__(
@@ -117,6 +124,7 @@ class Endpoint:
         key: bytes | None = None,
         max_message: int = MAX_MESSAGE_BYTES,
         peer: Address | None = None,
+        versions: tuple[int, ...] = (PROTOCOL_VERSION,),
     ):
         self.sock = sock
         for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
@@ -125,7 +133,7 @@ class Endpoint:
             except OSError:
                 pass  # the OS keeps its own cap; a smaller buffer only means more loss
         self.max_datagram = max_datagram
-        self.reassembler = reassembler or Reassembler(max_message=max_message)
+        self.reassembler = reassembler or Reassembler(max_message=max_message, versions=versions)
         self.sealer = Sealer(key) if key is not None else None
         self.peer = peer
         self.budget = DecodeBudget()
@@ -142,18 +150,19 @@ class Endpoint:
         """Close the socket; safe to call twice."""
         self.sock.close()
 
-    def pack(self, msg: dict[str, Any], *, pad_to: int = 0) -> list[bytes]:
+    def pack(self, msg: dict[str, Any], *, pad_to: int = 0, version: int = PROTOCOL_VERSION) -> list[bytes]:
         """Encode and fragment a message into datagrams, ready to (re)send.
 
         The datagrams are sealed (with a key) only when sent, so that every
         transmission carries a fresh sequence number. ``pad_to`` pads a
-        single-fragment message to that many bytes on the wire.
+        single-fragment message to that many bytes on the wire. Message ids
+        count from 1; a re-send reuses its datagrams, so its id too.
         """
         self._msg_id = (self._msg_id + 1) & 0xFFFFFFFF
         if self.sealer is None:
-            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram)
+            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, version=version)
         else:
-            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=FLAG_MAC, trailer=TRAILER_BYTES)
+            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=FLAG_MAC, trailer=TRAILER_BYTES, version=version)
         if pad_to and len(datagrams) == 1:
             datagrams = [pad(datagrams[0], pad_to - (TRAILER_BYTES if self.sealer else 0))]
         return datagrams
@@ -180,9 +189,9 @@ class Endpoint:
             except OSError:
                 pass  # a full send buffer is a loss; the peer's retry covers it
 
-    def send(self, msg: dict[str, Any], addr: Address) -> list[bytes]:
+    def send(self, msg: dict[str, Any], addr: Address, version: int = PROTOCOL_VERSION) -> list[bytes]:
         """Send one message; returns its datagrams for a reply cache."""
-        datagrams = self.pack(msg)
+        datagrams = self.pack(msg, version=version)
         self.send_datagrams(datagrams, addr)
         return datagrams
 
@@ -215,6 +224,14 @@ class Endpoint:
             self.rejected["foreign_peer"] += 1
             return Received(addr=None)
         size = len(datagram)
+        whole = over_budget = False
+
+        def charge(objects: int) -> None:
+            nonlocal over_budget
+            over_budget = True  # until the budget has paid for it
+            self.budget.charge(addr, objects, now)
+            over_budget = False
+
         try:
             if self.sealer is not None:
                 datagram = self.sealer.open(datagram, addr)
@@ -224,9 +241,10 @@ class Endpoint:
             payload = self.reassembler.feed(datagram, addr, now)
             if payload is None:
                 return Received(addr, size=size)
+            whole, version = True, datagram[2]
             size = max(size, len(payload) + HEADER_BYTES)
-            msg = decode(payload, check=lambda objects: self.budget.charge(addr, objects, now))
-            return Received(addr, msg=msg, size=size)
+            msg = decode(payload, check=charge, version=version)
+            return Received(addr, msg=msg, size=size, version=version)
         except ProtocolError as exc:
             self.rejected[type(exc).__name__] += 1
-            return Received(addr, error=exc, size=size)
+            return Received(addr, error=exc, size=size, bad_message=whole and not over_budget)
