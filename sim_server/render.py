@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 
 from protocol.constants import CAMERA_SIZE
+from protocol.messages import MIN_IMAGE_SIDE
 from sim_server import scenery as sc
 from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, SceneState
 
@@ -92,8 +93,8 @@ class CameraConfig:
     far: float = 450.0  # [m]
 
     def __post_init__(self) -> None:
-        if self.width < 8 or self.height < 8:
-            raise ValueError(f"image must be at least 8x8 px, got {self.width}x{self.height}")
+        if self.width < MIN_IMAGE_SIDE or self.height < MIN_IMAGE_SIDE:
+            raise ValueError(f"image must be at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} px, got {self.width}x{self.height}")
         if not 0.05 < self.hfov < 3.0:
             raise ValueError(f"hfov must be in (0.05, 3.0) rad, got {self.hfov}")
         if not abs(self.pitch) < 0.5:

@@ -9,6 +9,11 @@ With a shared key (``--key-file``) every datagram is sealed with a MAC and check
 against a replay window before it is even reassembled (:mod:`protocol.auth`);
 datagrams that fail are counted and never answered. Without a key, a datagram
 outside the current session is never answered with more bytes than it carried.
+
+A session ends on ``close``, on its timeout, and when one of its own requests
+(its token, from its address) is answered with a fatal error; nothing else,
+so no datagram without the token can end it. A client at version 2 is answered
+in version 2.
 """
 
 from __future__ import annotations
@@ -25,18 +30,20 @@ from typing import Any
 import numpy as np
 
 from protocol import messages as m
-from protocol.codec import MAX_REQUEST_BYTES
+from protocol.codec import MAX_REQUEST_BYTES, MAX_STR_LEN
 from protocol.errors import ProtocolError, VersionError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.messages import ErrorCode
-from protocol.transport import Endpoint
+from protocol.transport import DecodeBudget, Endpoint, Received
 from sim_server.errors import SimError
 from sim_server.world import World, WorldConfig, WorldState
 
-__all__ = ["ServerConfig", "SimServer"]
+__all__ = ["ServerConfig", "SimServer", "BAD_MESSAGE_RATE"]
 
-
+# Answers to malformed messages, per source: never larger than the message, and
+# at most this many a second (bursts as large), so a flood costs few sends.
+BAD_MESSAGE_RATE = 50.0  # [replies/s]
 
 @dataclass(frozen=True)
 class ServerConfig:
@@ -58,6 +65,7 @@ class ServerConfig:
 class _Session:
     token: bytes
     addr: Any
+    version: int  # the client's protocol version: every reply is in it
     nonce: bytes
     welcome: list[bytes]  # cached welcome datagrams
     image_format: str
@@ -79,11 +87,14 @@ class SimServer:
         self.config = config
         sock = socket.socket(socket.AF_INET6 if ":" in config.host else socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind((config.host, config.port))
-        self.endpoint = Endpoint(sock, max_datagram=config.max_datagram, faults=config.faults, key=config.key, max_message=MAX_REQUEST_BYTES)
+        self.endpoint = Endpoint(
+            sock, max_datagram=config.max_datagram, faults=config.faults, key=config.key, max_message=MAX_REQUEST_BYTES, versions=m.SUPPORTED_VERSIONS
+        )
         self.address = sock.getsockname()[:2]
         self.world = World(config.world, salt=config.seed)
         self.session: _Session | None = None
         self.stats: Counter[str] = Counter()
+        self._bad_replies = DecodeBudget(rate=BAD_MESSAGE_RATE, burst=BAD_MESSAGE_RATE)
         self._stopped = False  # set by stop(), even before serve() starts
 
     def __enter__(self) -> SimServer:
@@ -119,19 +130,33 @@ class SimServer:
                 print("vacc-server: parent process gone, exiting", file=sys.stderr)
                 break
             got = self.endpoint.receive(0.5)
-            if got is None or got.addr is None:
-                continue
-            if got.error is not None:
-                self._reject(got.error, got.addr, got.size)
-            elif got.msg is not None:
-                self.stats[f"rx.{got.msg['type']}"] += 1
-                limit = self._reply_limit(got.msg, got.addr, got.size)
-                try:
-                    self._dispatch(got.msg, got.addr, limit)
-                except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
-                    self.stats["internal_errors"] += 1
-                    print(f"vacc-server: internal error on {got.msg['type']}: {exc!r}", file=sys.stderr)
-                    self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc), limit=limit)
+            if got is not None:
+                self.handle(got)
+
+    def handle(self, got: Received) -> None:
+        """Answer one received datagram (a message, a rejection, or a fragment)."""
+        if got.addr is None:
+            return
+        if got.error is not None:
+            self._reject(got)
+            return
+        msg = got.msg
+        if msg is None:
+            return
+        self.stats[f"rx.{msg['type']}"] += 1
+        limit = self._reply_limit(msg, got.addr, got.size)
+        try:
+            self._dispatch(msg, got.addr, limit, got.version)
+        except Exception as exc:  # noqa: BLE001 - a bug must not kill the service
+            self.stats["internal_errors"] += 1
+            print(f"vacc-server: internal error on {msg['type']}: {exc!r}", file=sys.stderr)
+            s = self.session
+            if s is not None and got.addr == s.addr and msg.get("session") == s.token:
+                # INTERNAL is fatal: the session's world may be half-updated, so it
+                # ends here, and the client's new hello is answered at once.
+                self.session = None
+                self.stats["sessions_ended_internal"] += 1
+            self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc), limit=limit, version=got.version)
 
     # -- requests -------------------------------------------------------------
 
@@ -144,44 +169,61 @@ class SimServer:
             return None
         return size
 
-    def _reject(self, exc: ProtocolError, addr: Any, size: int) -> None:
+    def _reject(self, got: Received) -> None:
         self.stats["rejected"] += 1
+        exc, addr = got.error, got.addr
+        limit = None if self.endpoint.authenticated else got.size  # with a key, only a sealed datagram gets here
         if isinstance(exc, VersionError):
-            # The one bad datagram worth answering: the peer can fix its version.
-            # (With a key, only a sealed datagram gets this far.)
-            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}", limit=None if self.endpoint.authenticated else size)
+            # The peer can fix its version; the header of the answer says the server's.
+            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks versions {self._versions()}", limit=limit)
+        elif got.bad_message and exc is not None:
+            # A whole message, refused for its content: say why, so a client written
+            # from the spec does not wait for its timeout. Never to an over-budget source.
+            try:
+                self._bad_replies.charge(addr, 1, time.monotonic())
+            except ProtocolError:
+                self.stats["tx.bad_message_rate_limited"] += 1
+                return
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, str(exc), limit=limit, version=got.version)
 
-    def _send(self, msg: dict[str, Any], addr: Any, limit: int | None) -> list[bytes]:
+    @staticmethod
+    def _versions() -> str:
+        return "/".join(map(str, m.SUPPORTED_VERSIONS))
+
+    def _send(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int = m.PROTOCOL_VERSION) -> list[bytes]:
         """Send a reply no larger than ``limit`` bytes on the wire (else withhold it)."""
-        datagrams = self.endpoint.pack(msg)
+        datagrams = self.endpoint.pack(msg, version=version)
         if limit is not None and self.endpoint.wire_size(datagrams) > limit:
             self.stats["tx.withheld_larger_than_request"] += 1
             return []
         self.endpoint.send_datagrams(datagrams, addr)
         return datagrams
 
-    def _send_error(self, addr: Any, code: ErrorCode, detail: str, *, limit: int | None = None, **where: int | None) -> None:
-        msg = m.error(code, detail, **where)
-        if limit is not None and self.endpoint.wire_size(self.endpoint.pack(msg)) > limit:
+    def _send_error(
+        self, addr: Any, code: ErrorCode, detail: str, *, limit: int | None = None, version: int = m.PROTOCOL_VERSION, **where: int | None
+    ) -> None:
+        msg = m.error(code, detail[: MAX_STR_LEN // 4], **where)  # a str of at most 4 bytes a character fits the codec's limit
+        if limit is not None and self.endpoint.wire_size(self.endpoint.pack(msg, version=version)) > limit:
             msg = m.error(code, "", **where)  # the code alone may still fit
-        if self._send(msg, addr, limit):
+        if self._send(msg, addr, limit, version):
             self.stats[f"tx.error.{code.name}"] += 1
 
-    def _dispatch(self, msg: dict[str, Any], addr: Any, limit: int | None) -> None:
+    def _dispatch(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int) -> None:
         kind = msg["type"]
         if kind == "hello":
-            self._hello(msg, addr, limit)
+            self._hello(msg, addr, limit, version)
             return
         if kind in ("welcome", "obs", "error"):
+            # Never answered: an error for an error could ping-pong between two servers.
             self.stats["rejected.wrong_direction"] += 1
             return
         session = self.session
         if session is None or msg["session"] != session.token:
             if kind == "close":
-                self._send({"type": "close", "session": msg["session"]}, addr, limit)
+                self._send({"type": "close", "session": msg["session"]}, addr, limit, version)
             else:
                 self.stats["rejected.no_session"] += 1
-                self._send_error(addr, ErrorCode.NO_SESSION, "unknown or expired session token", limit=limit)
+                self._send_error(addr, ErrorCode.NO_SESSION, "unknown or expired session token", limit=limit, version=version)
             return
         if addr != session.addr:
             # A valid token from another address is a hijack attempt: not served.
@@ -193,44 +235,47 @@ class SimServer:
         elif kind == "reset":
             self._reset(session, msg, addr)
         elif kind == "heartbeat":
-            self.endpoint.send({"type": "heartbeat", "session": session.token, "seq": msg["seq"]}, addr)
+            self.endpoint.send({"type": "heartbeat", "session": session.token, "seq": msg["seq"]}, addr, session.version)
         elif kind == "close":
-            self.endpoint.send({"type": "close", "session": session.token}, addr)
+            self.endpoint.send({"type": "close", "session": session.token}, addr, session.version)
             self.session = None
             self.stats["sessions_closed"] += 1
 
-    def _hello(self, msg: dict[str, Any], addr: Any, limit: int | None) -> None:
+    def _hello(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int) -> None:
         session = self.session
         if session is not None and session.addr == addr and session.nonce == msg["nonce"]:
             if limit is None or self.endpoint.wire_size(session.welcome) <= limit:
                 self.endpoint.send_datagrams(session.welcome, addr)  # a repeated hello
             return
-        if msg["version"] != m.PROTOCOL_VERSION:
-            self._send_error(addr, ErrorCode.BAD_VERSION, f"server speaks version {m.PROTOCOL_VERSION}, hello says {msg['version']}", limit=limit)
+        if msg["version"] != version:
+            # The header's version is one the server speaks; the hello must say the same.
+            detail = f"server speaks versions {self._versions()}; hello says {msg['version']} in a version {version} datagram"
+            self._send_error(addr, ErrorCode.BAD_VERSION, detail, limit=limit)
             return
         if session is not None:
             # Who holds the world is nobody else's business.
-            self._send_error(addr, ErrorCode.BUSY, "the world is in use by another session; retry later", limit=limit)
+            self._send_error(addr, ErrorCode.BUSY, "the world is in use by another session; retry later", limit=limit, version=version)
             return
         fmt, width, height = msg["image_format"], msg["image_width"], msg["image_height"]
+        lo, hi = m.MIN_IMAGE_SIDE, m.MAX_IMAGE_SIDE
         problem = None
         if fmt not in m.IMAGE_FORMATS:
             problem = f"image_format {fmt!r} is not one of {m.IMAGE_FORMATS}"
-        elif fmt != "none" and not (1 <= width <= m.MAX_IMAGE_SIDE and 1 <= height <= m.MAX_IMAGE_SIDE):
-            problem = f"image size {width}x{height} outside 1..{m.MAX_IMAGE_SIDE}"
+        elif fmt != "none" and not (lo <= width <= hi and lo <= height <= hi):
+            problem = f"image size {width}x{height} outside {lo}..{hi} px"
         elif not MIN_DATAGRAM <= msg["max_datagram"] <= MAX_DATAGRAM:
             problem = f"max_datagram {msg['max_datagram']} outside {MIN_DATAGRAM}..{MAX_DATAGRAM}"
         elif len(msg["nonce"]) != m.NONCE_BYTES:
             problem = f"nonce must be {m.NONCE_BYTES} bytes"
         if problem:
-            self._send_error(addr, ErrorCode.BAD_MESSAGE, problem, limit=limit)
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, problem, limit=limit, version=version)
             return
         token = os.urandom(m.TOKEN_BYTES)  # a capability, not simulation randomness
         max_datagram = min(msg["max_datagram"], self.config.max_datagram)
         cfg = self.config.world
         welcome = {
             "type": "welcome",
-            "version": m.PROTOCOL_VERSION,
+            "version": version,
             "nonce": msg["nonce"],
             "session": token,
             "server": "vacc-sim/0.1",
@@ -241,28 +286,36 @@ class SimServer:
             "image_height": height if fmt != "none" else 0,
             "max_datagram": max_datagram,
             "session_timeout": self.config.session_timeout,
+            "seed_salt": self.world.salt,
         }
         self.endpoint.max_datagram = max_datagram
-        datagrams = self.endpoint.pack(welcome)
+        datagrams = self.endpoint.pack(m.for_version(welcome, version), version=version)
         if limit is not None and self.endpoint.wire_size(datagrams) > limit:
-            self._send_error(addr, ErrorCode.BAD_MESSAGE, f"pad the hello to {HELLO_BYTES} bytes", limit=limit)
+            self._send_error(addr, ErrorCode.BAD_MESSAGE, f"pad the hello to {HELLO_BYTES} bytes", limit=limit, version=version)
             return
-        self.session = _Session(token, addr, msg["nonce"], datagrams, fmt, (width, height), time.monotonic())
+        self.session = _Session(token, addr, version, msg["nonce"], datagrams, fmt, (width, height), time.monotonic())
         self.stats["sessions_opened"] += 1
         self.endpoint.send_datagrams(datagrams, addr)
 
+    def _error(self, s: _Session, addr: Any, code: ErrorCode, detail: str, **where: int | None) -> None:
+        """An error answering one of the session's own requests."""
+        self._send_error(addr, code, detail, version=s.version, **where)
+
     def _reset(self, s: _Session, msg: dict[str, Any], addr: Any) -> None:
         episode = msg["episode"]
+        if episode < 0:  # -1 stands for "none yet" and has no cached reply
+            self._error(s, addr, ErrorCode.BAD_RESET, f"episode {episode} is negative: episodes count from 0", episode=episode)
+            return
         if episode == s.episode:
             self.endpoint.send_datagrams(s.reset_reply, addr)  # a repeated reset
             return
         if episode < s.episode:
-            self._send_error(addr, ErrorCode.BAD_RESET, f"episode {episode} is older than {s.episode}", episode=episode)
+            self._error(s, addr, ErrorCode.BAD_RESET, f"episode {episode} is older than {s.episode}", episode=episode)
             return
         trace = None
         if msg["trajectory"] == "trace":
             if msg["trace_t"] is None or msg["trace_v"] is None:
-                self._send_error(addr, ErrorCode.BAD_RESET, "trajectory 'trace' needs trace_t and trace_v", episode=episode)
+                self._error(s, addr, ErrorCode.BAD_RESET, "trajectory 'trace' needs trace_t and trace_v", episode=episode)
                 return
             numbers = all(type(x) in (int, float) for x in (*msg["trace_t"], *msg["trace_v"]))  # not bool, not str
             try:
@@ -270,11 +323,11 @@ class SimServer:
                     raise TypeError
                 trace = (np.asarray(msg["trace_t"], dtype=float), np.asarray(msg["trace_v"], dtype=float))
             except (TypeError, ValueError, OverflowError):
-                self._send_error(addr, ErrorCode.BAD_RESET, "trace_t and trace_v must be arrays of numbers", episode=episode)
+                self._error(s, addr, ErrorCode.BAD_RESET, "trace_t and trace_v must be arrays of numbers", episode=episode)
                 return
         duration = msg["duration"]
         if duration is not None and not (math.isfinite(duration) and duration > 0):
-            self._send_error(addr, ErrorCode.BAD_RESET, f"duration {duration} must be > 0 s", episode=episode)
+            self._error(s, addr, ErrorCode.BAD_RESET, f"duration {duration} must be > 0 s", episode=episode)
             return
         try:
             state = self.world.reset(
@@ -282,31 +335,31 @@ class SimServer:
                 host_speed=msg["host_speed"], gap=msg["gap"], set_speed=msg["set_speed"],
             )  # fmt: skip
         except SimError as exc:
-            self._send_error(addr, ErrorCode.BAD_RESET, str(exc), episode=episode)
+            self._error(s, addr, ErrorCode.BAD_RESET, str(exc), episode=episode)
             return
         s.episode, s.frame, s.state = episode, 0, state
         s.step_reply = []
         s.wall_start = time.monotonic()
-        s.reset_reply = self.endpoint.send(self._obs(s, state), addr)
+        s.reset_reply = self.endpoint.send(self._obs(s, state), addr, s.version)
 
     def _step(self, s: _Session, msg: dict[str, Any], addr: Any) -> None:
         episode, frame = msg["episode"], msg["frame"]
         if s.state is None or episode != s.episode:
-            self._send_error(addr, ErrorCode.NO_EPISODE, f"no episode {episode} (current {s.episode})", episode=episode, frame=frame)
+            self._error(s, addr, ErrorCode.NO_EPISODE, f"no episode {episode} (current {s.episode})", episode=episode, frame=frame)
             return
         if frame == s.frame - 1 and s.step_reply:
             self.stats["cached_replies"] += 1
             self.endpoint.send_datagrams(s.step_reply, addr)
             return
         if frame != s.frame:
-            self._send_error(addr, ErrorCode.BAD_FRAME, f"step for frame {frame}, server is at frame {s.frame}", episode=episode, frame=frame)
+            self._error(s, addr, ErrorCode.BAD_FRAME, f"step for frame {frame}, server is at frame {s.frame}", episode=episode, frame=frame)
             return
         u = msg["action"]
         if not (math.isfinite(u) and -1.0 <= u <= 1.0):
-            self._send_error(addr, ErrorCode.BAD_ACTION, f"action {u!r} is not a finite number in [-1, 1]", episode=episode, frame=frame)
+            self._error(s, addr, ErrorCode.BAD_ACTION, f"action {u!r} is not a finite number in [-1, 1]", episode=episode, frame=frame)
             return
         if s.state.terminated or s.state.truncated:
-            self._send_error(addr, ErrorCode.EPISODE_OVER, f"episode {episode} ended at frame {s.frame} ({s.state.reason})", episode=episode, frame=frame)
+            self._error(s, addr, ErrorCode.EPISODE_OVER, f"episode {episode} ended at frame {s.frame} ({s.state.reason})", episode=episode, frame=frame)
             return
         state = self.world.step(float(u))
         s.state, s.frame = state, state.frame
@@ -316,7 +369,7 @@ class SimServer:
             delay = s.wall_start + state.t - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-        s.step_reply = self.endpoint.send(obs, addr)
+        s.step_reply = self.endpoint.send(obs, addr, s.version)
 
     def _obs(self, s: _Session, state: WorldState) -> dict[str, Any]:
         image, shape = None, None

@@ -40,6 +40,8 @@ from sim_server.vehicle import accel_of_force, advance_speed
 
 __all__ = ["WorldConfig", "WorldState", "World", "GAP_LIMIT"]
 
+SALT_MASK = 0xFFFFFFFF  # only the salt's low 32 bits are mixed into an episode seed
+SEED_MASK = 0xFFFFFFFFFFFFFFFF  # and the episode seed's low 64 bits
 HOST, LEAD, TRAFFIC = 1, 2, 3  # pymunk collision types
 BRAKE_LIGHT_ACCEL = -0.3  # [m/s^2] lead brake lights come on below this
 TRAFFIC_AHEAD = 250.0  # [m] traffic is kept within this window around the host
@@ -98,12 +100,13 @@ class World:
 
     Args:
         config: timing and traffic settings.
-        salt: mixed into every episode seed (the server's ``--seed``).
+        salt: mixed into every episode seed (the server's ``--seed``); kept as
+            mixed, its low 32 bits (the ``welcome``'s ``seed_salt``).
     """
 
     def __init__(self, config: WorldConfig | None = None, salt: int = 0):
         self.config = config or WorldConfig()
-        self.salt = salt
+        self.salt = salt & SALT_MASK
         self.state: WorldState | None = None
 
     def reset(
@@ -144,7 +147,7 @@ class World:
         except ValueError as exc:
             raise InitialConditionError(str(exc)) from None
         v_set = DEFAULT_SET_SPEED if set_speed is None else float(set_speed)
-        rng = np.random.default_rng([self.salt & 0xFFFFFFFF, seed & 0xFFFFFFFFFFFFFFFF])
+        rng = np.random.default_rng([self.salt, seed & SEED_MASK])
         if trajectory in LEAD_SCENARIOS:
             episode = lead_scenarios.build(trajectory, rng, cfg.physics_dt)
             self.v_lead_profile = episode.v_lead

@@ -166,3 +166,27 @@ def test_random_ev_training_windows_never_overlap_the_test_windows():
         t_s, _ = _load_trace(name)
         for f, start in T.EV_TEST_WINDOWS.values():
             assert f != name or t_s[j] <= start or t_s[i] >= start + T.TEST_DURATION, (name, t_s[i], start)
+
+
+def test_trace_semantics_as_the_spec_states():
+    # Time 0 is trace_t[0]; linear between samples; a speed band beyond Table 2's ICE
+    # 27..33 m/s is driven as given; truncated at the last full control period.
+    t = np.array([100.0, 102.0, 103.37])
+    v = np.array([5.0, 15.0, 15.0])
+    world = World()
+    states = run(world, [0.0] * 100, scenario="ice", seed=0, trajectory="trace", trace=(t, v))
+    assert states[0].v_lead == 5.0 and states[0].v_host == 5.0  # host starts at the trace's first speed
+    assert states[10].v_lead == pytest.approx(10.0)  # 1 s in: halfway between 5 and 15
+    assert states[-1].frame == int(np.floor((t[-1] - t[0]) / 0.02 + 1e-9)) // 5 == 33 and states[-1].reason == "end"
+    short = World().reset("ice", 0, "trace", trace=(np.array([0.0, 0.05]), np.array([10.0, 10.0])))
+    assert short.frame == 0 and short.truncated  # shorter than one control period
+
+
+def test_obs_t_is_physics_steps_times_dt():
+    states = run(World(), [0.0] * 3, scenario="ice", seed=0, trajectory="test-1")
+    assert states[3].t == 15 * 0.02 and states[3].t != 3 * 0.1
+    # A collision ends its frame at the physics step where it happened.
+    world = World()
+    state = world.reset("ice", 0, "stopped", host_speed=16.0, gap=0.5)
+    state = world.step(1.0)
+    assert state.collision and state.t < 5 * 0.02 and round(state.t / 0.02) == world.step_index
