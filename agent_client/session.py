@@ -23,22 +23,51 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from agent_client.errors import FatalSessionError, ServerTimeout, SessionError
 from protocol import messages as m
+from protocol.errors import VersionError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES
 from protocol.transport import Endpoint, is_loopback
 
-__all__ = ["Session", "RETRY_INITIAL", "RETRY_MAX", "GIVE_UP"]
+__all__ = ["Session", "RETRY_INITIAL", "RETRY_FIRST_RESET", "RETRY_MAX", "GIVE_UP"]
 
 RETRY_INITIAL = 0.02  # [s] first re-send timeout before any round trip is measured
+# [s] the same for resets, which keep their own estimate: a reset builds the world and
+# renders frame 0, and a session's first one builds the camera too (30-60 ms measured)
+RETRY_FIRST_RESET = 0.25
 RETRY_MIN = 0.002  # [s] floor of the adaptive re-send timeout
 RETRY_MAX = 0.5  # [s] re-send interval cap (doubling backoff)
 GIVE_UP = 5.0  # [s] without the expected reply, the session is declared lost
+
+
+@dataclass
+class _RoundTrip:
+    """A round-trip estimate of one kind of request (RFC 6298, Karn's rule)."""
+
+    initial: float  # [s] re-send timeout before any sample
+    srtt: float | None = None  # [s] smoothed round trip of unrepeated requests
+    rttvar: float = 0.0  # [s] its mean deviation
+    backoff: float = 0.0  # [s] re-send timeout kept from a request that needed re-sends
+
+    def timeout(self, retry_max: float) -> float:
+        wait = self.initial if self.srtt is None else min(retry_max, max(RETRY_MIN, self.srtt + 4.0 * self.rttvar))
+        # Karn: a backed-off timeout stays until a clean sample, so a server that
+        # is slow on purpose (real-time pacing) is not flooded with re-sends.
+        return max(wait, self.backoff)
+
+    def sample(self, rtt: float) -> None:
+        self.backoff = 0.0
+        if self.srtt is None:
+            self.srtt, self.rttvar = rtt, rtt / 2
+        else:  # RFC 6298 gains
+            self.rttvar = 0.75 * self.rttvar + 0.25 * abs(self.srtt - rtt)
+            self.srtt = 0.875 * self.srtt + 0.125 * rtt
 
 
 def resolve(addr: tuple[str, int]) -> tuple[str, int]:
@@ -57,6 +86,7 @@ class Session:
         image_size: (width, height) [px] of the image to ask for.
         give_up: [s] bound on waiting for any one reply.
         retry_initial: [s] first re-send timeout.
+        retry_first_reset: [s] first re-send timeout of resets.
         retry_max: [s] re-send timeout cap.
         faults: fault injection on the client's sends (tests, benchmarks).
         client_name: shown in the server's logs.
@@ -71,6 +101,7 @@ class Session:
         image_size: tuple[int, int] = (400, 400),
         give_up: float = GIVE_UP,
         retry_initial: float = RETRY_INITIAL,
+        retry_first_reset: float = RETRY_FIRST_RESET,
         retry_max: float = RETRY_MAX,
         faults: FaultConfig | None = None,
         max_datagram: int = DEFAULT_DATAGRAM,
@@ -81,7 +112,6 @@ class Session:
         self.image_format = image_format
         self.image_size = image_size
         self.give_up = give_up
-        self.retry_initial = retry_initial
         self.retry_max = retry_max
         self.client_name = client_name
         self.max_datagram = max_datagram
@@ -97,9 +127,7 @@ class Session:
         self.episode = -1
         self.frame = -1
         self.resends = 0  # requests re-sent after a timeout
-        self._srtt: float | None = None  # [s] smoothed round trip of unrepeated requests
-        self._rttvar = 0.0  # [s] its mean deviation
-        self._backoff = 0.0  # [s] re-send timeout kept from a request that needed re-sends
+        self._rtt = {"reset": _RoundTrip(retry_first_reset), "other": _RoundTrip(retry_initial)}
         self._closed = False
         self._heartbeat_seq = 0
         self._last_send = time.monotonic()  # [s] when a request last went out
@@ -242,6 +270,7 @@ class Session:
             lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == 0,
             f"reset of episode {episode}",
             error_match=lambda e: e["episode"] in (episode, None),
+            rtt=self._rtt["reset"],
         )
         self.frame = 0
         return obs
@@ -301,6 +330,7 @@ class Session:
         deadline: float | None = None,
         error_match: Callable[[dict[str, Any]], bool] = lambda e: True,
         pad_to: int = 0,
+        rtt: _RoundTrip | None = None,
     ) -> dict[str, Any]:
         endpoint, server = self.endpoint, self.server
         datagrams = endpoint.pack(msg, pad_to=pad_to)
@@ -310,10 +340,8 @@ class Session:
         sent_at = now
         # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
         # requests answered without a re-send update the estimate).
-        wait = self.retry_initial if self._srtt is None else min(self.retry_max, max(RETRY_MIN, self._srtt + 4.0 * self._rttvar))
-        # Karn: a backed-off timeout stays until a clean sample, so a server that
-        # is slow on purpose (real-time pacing) is not flooded with re-sends.
-        wait = max(wait, self._backoff)
+        rtt = rtt or self._rtt["other"]
+        wait = rtt.timeout(self.retry_max)
         resent = False
         resend_at = now + wait
         while True:
@@ -323,21 +351,18 @@ class Session:
                 reply = got.msg
                 if accept(reply):
                     if not resent:
-                        self._backoff = 0.0
-                        rtt = now - sent_at
-                        if self._srtt is None:
-                            self._srtt, self._rttvar = rtt, rtt / 2
-                        else:  # RFC 6298 gains
-                            self._rttvar = 0.75 * self._rttvar + 0.25 * abs(self._srtt - rtt)
-                            self._srtt = 0.875 * self._srtt + 0.125 * rtt
+                        rtt.sample(now - sent_at)
                     return reply
                 if reply["type"] == "error" and error_match(reply):
                     text = f"server {self._where()}: {reply['name']}: {reply['detail']}"
                     if reply["fatal"]:
-                        self.token = None if reply["code"] == m.ErrorCode.NO_SESSION else self.token
+                        self.token = None  # the server holds no session for it any more
                         raise FatalSessionError(text, reply["code"])
                     raise SessionError(text, reply["code"])
                 continue  # stale or duplicate reply
+            if got is not None and isinstance(got.error, VersionError) and got.addr == server and msg["type"] == "hello":
+                # A server of another version answers in its own, which this side cannot read.
+                raise FatalSessionError(f"server {self._where()} speaks another protocol version: {got.error}", m.ErrorCode.BAD_VERSION)
             if now >= deadline:
                 hint = "; check that both sides use the same --key-file" if endpoint.authenticated and self.token is None else ""
                 raise ServerTimeout(
@@ -350,5 +375,5 @@ class Session:
                 self.resends += 1
                 resent = True
                 wait = min(wait * 2, self.retry_max)
-                self._backoff = wait
+                rtt.backoff = wait
                 resend_at = now + wait
