@@ -57,7 +57,7 @@ REQUIRED_KEYS = ("scenario", "trajectory", "seed", "control_period", "protocol")
 PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not strings
 # Protocol 2 only added reset and obs fields (initial conditions, set speed), so a
 # protocol-1 recording replays the same run below the default 33.5 m/s set speed.
-REPLAYABLE_PROTOCOLS = (1, PROTOCOL_VERSION)
+REPLAYABLE_PROTOCOLS = (1, 2, PROTOCOL_VERSION)
 START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
 
 

@@ -157,3 +157,9 @@ def test_cli_replay_of_a_recording_is_byte_identical_and_pads(tmp_path):
     assert result.exit_code == 0, result.output
     rows = again.read_text().splitlines()
     assert len(rows) == 1 + 211 and rows[-1].split(",")[6] == rows[-11].split(",")[6]  # force held
+
+
+def test_a_protocol_2_recording_still_replays(tmp_path):
+    """Protocol 3 only added welcome.seed_salt: recordings made under protocol 2 replay the same."""
+    body = _good().replace("protocol=1", "protocol=2")
+    assert read_human_file(_file(tmp_path, body)).header.protocol == 2

@@ -152,7 +152,7 @@ def test_trace_trajectory_from_csv(tmp_path, run_vacc):
     "args, message",
     [
         (["--server", "nohost"], "HOST:PORT"),
-        (["--trajectory", "missing.csv"], "cannot read trace"),
+        (["--trajectory", "missing.csv"], "no such trace file"),
         (["--controller", "warp"], "Invalid value"),
     ],
 )
