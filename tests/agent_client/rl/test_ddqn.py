@@ -209,7 +209,9 @@ def _raw_obs(rng: np.random.Generator, gap: float) -> _Recording:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("action, allowed", [("levels", {"image", "image_shape", "v_host"}), ("steps", {"image", "image_shape", "v_host", "set_speed"})])
+# steps: also the set speed (the driver's input) and the host's own acceleration (its
+# anti-windup: the force it achieved), never anything of the lead
+@pytest.mark.parametrize("action, allowed", [("levels", {"image", "image_shape", "v_host"}), ("steps", {"image", "image_shape", "v_host", "set_speed", "accel"})])
 def test_controller_reads_only_image_host_speed_and_set_speed(action, allowed):
     cfg = Config(action=action)
     ctl = DDQNController(QNetwork.of(cfg), cfg)
