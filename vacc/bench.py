@@ -24,6 +24,7 @@ import click
 import numpy as np
 
 from agent_client.launcher import local_server
+from agent_client.progress import progress_bar
 from agent_client.session import Session
 
 ECHO_SERVER = """
@@ -300,7 +301,7 @@ def _cpu() -> str:
 def run_bench(quick: bool) -> dict[str, Any]:
     steps, reps = (500, 3) if quick else (3000, 5)
     rows: dict[str, Any] = {}
-    with click.progressbar(length=12, label="bench", file=sys.stderr) as bar:
+    with progress_bar(12, "bench", unit="part") as bar:
         rows["udp_echo"] = udp_echo(steps, reps)
         bar.update(1)
         rows["lockstep_no_image"] = lockstep(steps, reps)

@@ -24,6 +24,7 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
+from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from energy.metrics import Metrics
@@ -175,7 +176,7 @@ def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
     Raises:
         click.ClickException: a run failed; the others are cancelled.
     """
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, click.progressbar(length=len(work), label=label, file=None) as bar:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), label, unit="run") as bar:
         futures = [pool.submit(run_job, j) for j in work]
         try:
             for fut in as_completed(futures):

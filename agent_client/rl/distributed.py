@@ -646,7 +646,7 @@ class _StreamsLoop:
         self.transitions_by_actor = list(saved.get("transitions_by_actor", [0] * K))
         self.restarts_by_actor = list(saved.get("restarts_by_actor", [0] * K))
         self.restarts_at_start = list(self.restarts_by_actor)
-        self.bar = Progress(cfg.total_steps, enabled=progress)
+        self.bar = Progress(cfg.total_steps, enabled=progress, initial=self.step)
         self.ep_return, self.ep_len = [0.0] * K, [0] * K
         self.tokens: list[str | None] = [None] * K
         self.pids: set[int] = set()
@@ -663,8 +663,7 @@ class _StreamsLoop:
                 "restarts_by_actor": list(self.restarts_by_actor)}  # fmt: skip
 
     def note(self, message: str) -> None:
-        sys.stderr.write(("\n" if self.bar.enabled and self.bar.tty else "") + f"vacc train: {message}\n")
-        sys.stderr.flush()
+        self.bar.write(f"vacc train: {message}")
 
     def epsilon(self) -> float:
         return linear_schedule(self.cfg.start_e, self.cfg.end_e, self.cfg.exploration_steps, self.step)
@@ -744,7 +743,7 @@ class _StreamsLoop:
     def show(self, pool: _LocalPool | _RayPool, force: bool = False) -> None:
         recent = float(np.mean(self.recent)) if self.recent else float("nan")
         extra = f"actors {pool.alive()}/{self.cfg.servers}  restarts {sum(self.restarts_by_actor)}"
-        self.bar.update(self.step, self.sps, self.epsilon(), recent, force=force, extra=extra)
+        self.bar.update(self.step, self.epsilon(), recent, force=force, extra=extra)
 
 
 def train_distributed(

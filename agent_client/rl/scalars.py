@@ -6,7 +6,6 @@ Metric names are grouped as CleanRL's: ``charts/``, ``losses/``, ``eval/``.
 from __future__ import annotations
 
 import csv
-import math
 import sys
 import time
 from pathlib import Path
@@ -88,30 +87,30 @@ class ScalarLog:
 
 
 class Progress:
-    """A one-line progress display on stderr: steps, steps/s, ε, recent return."""
+    """The training progress bar (:func:`agent_client.progress.progress_bar`): steps,
+    steps/s and ETA from tqdm, with ε and the recent return after them."""
 
-    def __init__(self, total: int, enabled: bool = True, period: float = 1.0):
-        self.total, self.enabled, self.period = total, enabled, period
+    def __init__(self, total: int, enabled: bool = True, initial: int = 0):
+        from agent_client.progress import progress_bar
+
+        self.enabled = enabled
+        self.bar = progress_bar(total, "train", enabled=enabled, initial=initial, unit="step")
         self.tty = sys.stderr.isatty()
-        self._last = 0.0
-        if enabled and not self.tty:
-            self.period = max(period, 30.0)  # a log file gets a line every 30 s
 
-    def update(self, step: int, sps: float, epsilon: float, recent_return: float, force: bool = False, extra: str = "") -> None:
-        now = time.monotonic()
-        if not self.enabled or (now - self._last < self.period and not force):
-            return
-        self._last = now
-        width = 24
-        filled = int(width * step / self.total)
-        eta = (self.total - step) / sps if sps > 0 else math.inf
-        line = (
-            f"[{'#' * filled}{'-' * (width - filled)}] {step}/{self.total} "
-            f"{sps:5.0f} steps/s  eps {epsilon:.3f}  return {recent_return:8.2f}  eta {eta / 60:5.1f} min"
-        ) + (f"  {extra}" if extra else "")
-        sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
-        sys.stderr.flush()
+    def update(self, step: int, epsilon: float, recent_return: float, force: bool = False, extra: str = "") -> None:
+        """Move to ``step``; ``force`` redraws at once (the final line)."""
+        self.bar.set_postfix_str(f"eps {epsilon:.3f}  return {recent_return:8.2f}" + (f"  {extra}" if extra else ""), refresh=False)
+        self.bar.update(step - self.bar.n)
+        if force and self.tty:  # a log gets its final line from close()
+            self.bar.refresh()
+
+    def write(self, message: str) -> None:
+        """A line of its own on stderr, above a live bar."""
+        if self.tty:
+            self.bar.write(message, file=sys.stderr)
+        else:
+            sys.stderr.write(message + "\n")
+            sys.stderr.flush()
 
     def close(self) -> None:
-        if self.enabled and self.tty:
-            sys.stderr.write("\n")
+        self.bar.close()

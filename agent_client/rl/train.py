@@ -132,7 +132,7 @@ def train(
 def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: LoopState, progress: bool) -> float:
     """Act, store, learn, evaluate and checkpoint until ``cfg.total_steps``; returns the wall time [s]."""
     rng, log = learner.acting_rng, learner.log
-    bar = Progress(cfg.total_steps, enabled=progress)
+    bar = Progress(cfg.total_steps, enabled=progress, initial=state.global_step)
     recent = deque(state.recent_returns, maxlen=20)
     grid = _Schedule.at(state.global_step, cfg)
     t_start, steps_at_start = time.perf_counter(), state.global_step
@@ -164,7 +164,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                     learner.train_step(memory, step)
                 if step % cfg.target_sync_every == 0:
                     learner.sync_target()
-                bar.update(step, sps(), epsilon, float(np.mean(recent)) if recent else float("nan"))
+                bar.update(step, epsilon, float(np.mean(recent)) if recent else float("nan"))
             if done:  # a whole episode (not one cut by the step budget)
                 state.episodes += 1
                 recent.append(episode_return)
@@ -176,9 +176,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 learner.checkpoint(asdict(state), memory)
                 break
             _evaluate_and_checkpoint(cfg, learner, memory, state, grid)
-        final_sps = sps()
         learner.wait()
-        bar.update(state.global_step, final_sps, linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step),
+        bar.update(state.global_step, linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step),
                    float(np.mean(recent)) if recent else float("nan"), force=True)  # fmt: skip
     finally:
         bar.close()
