@@ -14,6 +14,13 @@ Kept apart from the env and the network, as highway-env keeps ``action.py``.
   the set speed, or a standstill under the brake), the held force drops to the one the
   vehicle achieved, as a production controller's integrator does; else a policy could
   sit at full throttle on the limiter and need a second to come off it.
+* ``ramp`` (beyond the paper): action ``a`` picks the paper's level ``-1 + 0.1 a`` as a
+  *target*; the held force moves toward it by at most :data:`RAMP_RATE` per step (1.4 m/s^3
+  of throttle, 2.2 m/s^3 of brake, inside ISO 15622's 2.5), except the full brake, which acts
+  at once (the emergency a stopped car ahead needs). The policy keeps a proportional
+  mapping from what it sees to the force it wants, as the paper's does, so it need not
+  integrate (the "steps" type's slow limit cycle); the actuator makes it smooth. It
+  observes the held force and the set speed as ``controls``, with the same anti-windup.
 """
 
 from __future__ import annotations
@@ -26,15 +33,18 @@ import numpy as np
 from protocol.constants import A_MAX, A_MIN, FORCES, N_ACTIONS
 from sim_server.vehicle import accel_of_force
 
-__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "make_action_type"]
+__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "make_action_type"]
 
-ACTION_TYPES = ("levels", "steps")
+ACTION_TYPES = ("levels", "steps", "ramp")
 # Force increments of the "steps" type: fine near zero, one hard brake (a stopped car
 # ahead needs -4 m/s^2 within about 0.3 s), and no hard throttle, which comfort never needs.
 FORCE_STEPS = (-0.5, -0.1, -0.02, 0.0, 0.02, 0.1)
 # The "steps" type's controls, per stacked frame: the force held when the frame was taken
 # (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
 CONTROLS = ("force", "set_speed")
+# The "ramp" type's largest change of the held force per step, toward the chosen level.
+RAMP_RATE = 0.04
+EMERGENCY_LEVEL = 0  # the "ramp" level that acts at once: the full brake
 FORCE_GRID = 0.02  # every force the "steps" type holds is a multiple of this
 WINDUP_TOLERANCE = 1e-3  # [m/s^2] achieved acceleration this far short of the command: limited
 
@@ -79,21 +89,17 @@ class ForceLevels:
         return None
 
 
-class ForceSteps:
-    """Increments of a held force, which starts each episode at 0 (coasting at constant speed)."""
+class HeldForce:
+    """A force held from step to step, which starts each episode at 0 (coasting at constant
+    speed); the base of the "steps" and "ramp" types, which observe it with the set speed."""
 
-    name, n, n_controls = "steps", len(FORCE_STEPS), len(CONTROLS)
+    n_controls = len(CONTROLS)
 
     def __init__(self) -> None:
         self.u = 0.0
 
     def reset(self) -> None:
         self.u = 0.0
-
-    def force(self, action: int) -> float:
-        # rounded to the 0.02 grid, so that a long run of steps never drifts off it
-        self.u = float(np.clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0))
-        return self.u
 
     def observe(self, accel: float) -> None:
         """Anti-windup: the acceleration [m/s^2] the last step achieved; where it fell short
@@ -107,8 +113,33 @@ class ForceSteps:
         return np.array([self.u, set_speed], np.float32)
 
 
+class ForceSteps(HeldForce):
+    """Increments of the held force."""
+
+    name, n = "steps", len(FORCE_STEPS)
+
+    def force(self, action: int) -> float:
+        # rounded to the 0.02 grid, so that a long run of steps never drifts off it
+        self.u = float(np.clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0))
+        return self.u
+
+
+class ForceRamp(HeldForce):
+    """The paper's 21 levels as targets of a rate-limited held force."""
+
+    name, n = "ramp", N_ACTIONS
+
+    def force(self, action: int) -> float:
+        target = float(FORCES[action])
+        if action == EMERGENCY_LEVEL:
+            self.u = target
+        else:  # rounded to 0.01, so that a long run of ramps never drifts off the levels
+            self.u = round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+        return self.u
+
+
 def make_action_type(name: str) -> ActionType:
-    """A fresh action type by name ("levels" or "steps").
+    """A fresh action type by name (one of :data:`ACTION_TYPES`).
 
     Raises:
         ValueError: an unknown name.
@@ -117,4 +148,6 @@ def make_action_type(name: str) -> ActionType:
         return ForceLevels()
     if name == "steps":
         return ForceSteps()
+    if name == "ramp":
+        return ForceRamp()
     raise ValueError(f"action type {name!r} is not one of {ACTION_TYPES}")

@@ -21,7 +21,7 @@ from agent_client import preprocess as pre
 from agent_client.actions import ACTION_TYPES, make_action_type
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
-from agent_client.rewards import REWARDS, make_reward
+from agent_client.rewards import ECO_WEIGHTS, REWARDS, make_reward
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
@@ -50,11 +50,14 @@ class VisionACCEnv(gym.Env):
     ``action="steps"``: ``Discrete(6)``, action ``a`` adds
     :data:`agent_client.actions.FORCE_STEPS` ``[a]`` to the force held since the last
     step (0 at the start), so the policy cannot jerk by accident.
+    ``action="ramp"``: ``Discrete(21)``, action ``a`` picks the level ``-1 + 0.1 a`` as
+    the target of a held force that moves toward it by at most
+    :data:`agent_client.actions.RAMP_RATE` per step; the full brake acts at once.
 
     ## Observation space
     ``Dict(frames=Box(0, 255, (8, 105, 150), uint8), speeds=Box(0, 60, (8,), float32))``:
     the last 8 preprocessed camera frames (oldest first, ``stack_stride`` control
-    steps apart) and the host speeds [m/s] at those frames. With ``action="steps"``,
+    steps apart) and the host speeds [m/s] at those frames. With ``action="steps"`` or ``"ramp"``,
     also ``controls=Box((8, 2), float32)``: at each stacked frame the force then held
     (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
     The gap, the lead's speed and every other privileged quantity are never in the
@@ -63,7 +66,8 @@ class VisionACCEnv(gym.Env):
     ## Rewards
     Table 1 of the paper (:mod:`agent_client.rewards`): ``reward="gap"`` or
     ``"force"``, normalised to [-1, 1]; or ``"eco"``: the gap term minus the host's
-    instantaneous energy and jerk (beyond the paper).
+    instantaneous energy, its jerk and its speed difference to the lead, weighted by
+    ``eco_weights`` (beyond the paper).
 
     ## Starting state
     Table 2 of the paper for the scenario (or the lead scenario's own ranges,
@@ -137,6 +141,7 @@ class VisionACCEnv(gym.Env):
         set_speed: float | None = None,
         key_file: str | None = None,
         action: str = "levels",
+        eco_weights: tuple[float, ...] = ECO_WEIGHTS,
     ):
         if action not in ACTION_TYPES:
             raise ValueError(f"action {action!r} is not one of {ACTION_TYPES}")
@@ -162,7 +167,7 @@ class VisionACCEnv(gym.Env):
         self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
         self.set_speed = set_speed
-        self.reward_fn = make_reward(reward, scenario)
+        self.reward_fn = make_reward(reward, scenario, eco_weights)
         self._a_prev = 0.0  # [m/s^2] the host's acceleration over the previous step
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self.episode_seconds = episode_seconds
@@ -241,7 +246,7 @@ class VisionACCEnv(gym.Env):
         u = self.actions.force(int(action))
         obs = self.session.step(u)
         a = float(obs["accel"])
-        reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev)
+        reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev, v_lead=float(obs["v_lead"]))
         self._a_prev = a
         observation, info = self._observe(obs), self._info(obs)
         self._after(info)

@@ -19,14 +19,16 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
   reward's peak instead of a penalty for ever), minus
   the instantaneous energy of the host (CMEM fuel rate for the ICE car, the eq. 6 battery
   power for the EV, each over its full-throttle value at 30 m/s), minus a comfort term
-  (the jerk over one control period, over 4x ISO 15622's 2.5 m/s^3), weighted by
-  :data:`ECO_WEIGHTS` and normalised by their sum so it stays in [-1, 1]. The energy and
-  the jerk come from the host's own speed and acceleration, never the lead's: privileged
-  only in that they shape training, as the gap does.
+  (the jerk over one control period, over 4x ISO 15622's 2.5 m/s^3), minus a closing term
+  (the speed difference to the lead over :data:`CLOSING_FULL`: it damps the slow cycle
+  of the gap about its target that a gap term alone leaves unpunished), weighted by
+  :data:`ECO_WEIGHTS` and normalised by their sum so it stays in [-1, 1]. The gap and
+  the lead's speed are privileged: they shape training, as the paper's gap term does, and
+  never reach the network.
 
 Every reward takes (gap, u) and, as keywords, the host's speed ``v`` [m/s], its
-acceleration ``a`` [m/s^2] over the step and the acceleration ``a_prev`` of the step
-before; the paper's two ignore them.
+acceleration ``a`` [m/s^2] over the step, the acceleration ``a_prev`` of the step
+before and the lead's speed ``v_lead`` [m/s]; the paper's two ignore them.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from protocol.constants import DESIRED_GAP
 
 __all__ = [
     "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
+    "closing_term", "check_eco_weights",
     "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
 ]  # fmt: skip
 
@@ -82,8 +85,10 @@ FUEL_FULL = 19.1  # [g/s] Corolla CMEM fuel rate at 30 m/s and full throttle (3.
 POWER_FULL = 246.5  # [kW] Leaf eq. 6 battery power at 30 m/s and full throttle
 JERK_FULL = 4.0 * ISO_JERK_LIMIT_MPS3  # [m/s^3] the comfort term's full scale
 CONTROL_PERIOD = 0.1  # [s] the simulator's default decision period
-# Initial weights (gap, energy, comfort); not yet tuned by an ablation (docs/training.md).
-ECO_WEIGHTS = (1.0, 0.5, 0.25)
+CLOSING_FULL = 5.0  # [m/s] speed difference to the lead at which the closing term is full
+# Weights (gap, energy, comfort, closing); the ablations that chose them: docs/training.md.
+ECO_WEIGHTS = (1.0, 0.5, 0.25, 0.5)
+ECO_WEIGHT_NAMES = ("gap", "energy", "comfort", "closing")
 ECO_TIME_GAP = 2.0  # [s] 55 m at 27.5 m/s, the ICE leads' lower band: the paper's target on its own roads
 
 
@@ -104,6 +109,20 @@ def comfort_term(a: float, a_prev: float, dt: float = CONTROL_PERIOD) -> float:
     return min(1.0, abs(a - a_prev) / dt / JERK_FULL)
 
 
+def closing_term(v: float, v_lead: float) -> float:
+    """|v_lead - v| over :data:`CLOSING_FULL`, at most 1."""
+    return min(1.0, abs(v_lead - v) / CLOSING_FULL)
+
+
+def check_eco_weights(weights: tuple[float, ...]) -> str | None:
+    """Why ``weights`` cannot weight the eco reward, or None if they can."""
+    if len(weights) != len(ECO_WEIGHT_NAMES):
+        return f"needs {len(ECO_WEIGHT_NAMES)} weights ({', '.join(ECO_WEIGHT_NAMES)}), got {len(weights)}"
+    if any(not np.isfinite(w) or w < 0.0 for w in weights) or weights[0] <= 0.0:
+        return f"weights must be finite and >= 0, the gap's > 0; got {weights}"
+    return None
+
+
 def gap_reward(gap: float, u: float, **_: Any) -> float:
     """Gap-based DDQN reward in [-1, 1]; ignores the force."""
     return gap_term(gap) / 10.0
@@ -114,18 +133,27 @@ def force_reward(gap: float, u: float, **_: Any) -> float:
     return (gap_term(gap) + force_term(u)) / 20.0
 
 
-def eco_reward(gap: float, u: float, *, v: float, a: float, a_prev: float, scenario: str = "ice", **_: Any) -> float:
-    """Eco reward in [-1, 1]: gap term, minus energy, minus jerk (see the module docstring)."""
-    w_gap, w_energy, w_comfort = ECO_WEIGHTS
-    total = w_gap * gap_term(gap, eco_desired_gap(v)) / 10.0 - w_energy * energy_term(v, a, scenario) - w_comfort * comfort_term(a, a_prev)
-    return total / (w_gap + w_energy + w_comfort)
+def eco_reward(
+    gap: float, u: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
+    weights: tuple[float, ...] = ECO_WEIGHTS, **_: Any,
+) -> float:
+    """Eco reward in [-1, 1]: gap term, minus energy, jerk and closing speed (see the module
+    docstring). Without ``v_lead`` the closing term is 0."""
+    w_gap, w_energy, w_comfort, w_closing = weights
+    closing = 0.0 if v_lead is None else closing_term(v, v_lead)
+    total = (
+        w_gap * gap_term(gap, eco_desired_gap(v)) / 10.0 - w_energy * energy_term(v, a, scenario)
+        - w_comfort * comfort_term(a, a_prev) - w_closing * closing
+    )  # fmt: skip
+    return total / sum(weights)
 
 
 REWARDS: dict[str, Callable[..., float]] = {"gap": gap_reward, "force": force_reward, "eco": eco_reward}
 
 
-def make_reward(name: str, scenario: str) -> Callable[..., float]:
-    """The reward function ``name`` for the host of ``scenario`` ("ice" or "ev").
+def make_reward(name: str, scenario: str, eco_weights: tuple[float, ...] = ECO_WEIGHTS) -> Callable[..., float]:
+    """The reward function ``name`` for the host of ``scenario`` ("ice" or "ev"); the eco
+    reward weighted by ``eco_weights`` (gap, energy, comfort, closing).
 
     Raises:
         ValueError: an unknown name.
@@ -133,4 +161,9 @@ def make_reward(name: str, scenario: str) -> Callable[..., float]:
     if name not in REWARDS:
         raise ValueError(f"reward {name!r} is not one of {sorted(REWARDS)}")
     fn = REWARDS[name]
-    return (lambda gap, u, **kw: fn(gap, u, scenario=scenario, **kw)) if name == "eco" else fn
+    if name != "eco":
+        return fn
+    weights = tuple(float(w) for w in eco_weights)
+    if (why := check_eco_weights(weights)) is not None:
+        raise ValueError(f"eco weights: {why}")
+    return lambda gap, u, **kw: fn(gap, u, scenario=scenario, weights=weights, **kw)

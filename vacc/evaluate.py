@@ -39,7 +39,7 @@ LABELS = {
     "lead": "Lead vehicle",
     "ddqn-gap": "Gap-based DDQN",
     "ddqn-force": "Force-based DDQN",
-    "ddqn-eco": "Eco DDQN (force steps)",
+    "ddqn-eco": "Eco DDQN",
     "acc": "Traditional ACC",
 }
 OPTIONAL = ("ddqn-eco",)  # beyond the paper: in the default methods only where its model is shipped

@@ -71,7 +71,7 @@ def _option(f: dataclasses.Field[Any]) -> Callable[[Any], Any]:
         flag = OPTION_NAMES.get(name, name).replace("_", "-")
         return click.option(f"--{flag}/--no-{flag}", name, **common)
     if kind.startswith("tuple"):
-        common["default"] = ",".join(default)
+        common["default"] = ",".join(map(str, default))
         return click.option(option_name(name), name, metavar="A,B,...", **common)
     if kind.endswith("| None"):
         base = {"float": float, "int": int}.get(kind.split()[0], click.Path(dir_okay=False, exists=True))
@@ -99,6 +99,11 @@ def make_config(values: dict[str, Any]) -> Config:
             v = type(getattr(Config(), f.name))(v)  # "2" -> 2 for --zoom
         elif str(f.type).startswith("tuple"):
             v = tuple(t.strip() for t in v.split(",") if t.strip())
+            if "float" in str(f.type):
+                try:
+                    v = tuple(float(t) for t in v)
+                except ValueError:
+                    raise click.BadParameter(f"{values[f.name]!r} is not a comma-separated list of numbers", param_hint=option_name(f.name)) from None
         elif str(f.type) == "float | None" and v is not None and v <= 0:
             v = None  # 0: "none", e.g. whole trajectories
         kw[f.name] = v
@@ -137,7 +142,7 @@ def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) 
     defaults = {}
     for f in dataclasses.fields(Config):
         v = getattr(cfg, f.name)
-        defaults[f.name] = ",".join(v) if isinstance(v, tuple) else (str(v) if f.name in CHOICES else v)
+        defaults[f.name] = ",".join(map(str, v)) if isinstance(v, tuple) else (str(v) if f.name in CHOICES else v)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     return value
 

@@ -12,6 +12,7 @@ from typing import Any
 
 from agent_client.actions import ACTION_TYPES
 from agent_client.errors import InputFileError
+from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.preprocess import ZOOMS
 from agent_client.rl.evaluation import eval_episode
 from protocol.scenarios import (
@@ -32,7 +33,7 @@ SCHEDULES = ("parallel", "serial")
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
-LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels"}
+LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "eco_weights": (1.0, 0.5, 0.25, 0.0)}
 
 
 class ConfigError(ValueError):
@@ -55,9 +56,13 @@ class Config:
     set_speed: float = DEFAULT_SET_SPEED
     """[m/s] cruise set speed of training and evaluation episodes: the host's speed limiter
     holds it (docs/scenarios.md). Runs from before the limiter are repeated with 80."""
+    eco_weights: tuple[float, ...] = ECO_WEIGHTS
+    """Weights of the eco reward's terms: gap, energy, comfort, closing speed
+    (agent_client/rewards.py; the ablation that chose them is in docs/training.md)."""
     action: str = "levels"
-    """Action type (agent_client/actions.py): "levels", the paper's 21 force levels; or "steps",
-    increments of a held force, fine near zero, with the force and the set speed observed."""
+    """Action type (agent_client/actions.py): "levels", the paper's 21 force levels; "steps",
+    increments of a held force, fine near zero; or "ramp", the 21 levels as targets of a
+    rate-limited held force. The last two observe the held force and the set speed."""
     train_trajectories: tuple[str, ...] = ("random",)
     """Comma-separated lead trajectories of training episodes, one drawn per episode (repeat a
     name to weight it): "random" (the scenario's generator) and lead scenarios such as stopped,
@@ -150,6 +155,8 @@ class Config:
             raise bad("reward", f"{self.reward!r} is not one of {sorted(REWARDS)}")
         if self.scenario not in ("ice", "ev"):
             raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
+        if (why := check_eco_weights(tuple(self.eco_weights))) is not None:
+            raise bad("eco_weights", why)
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
         if self.action != "levels" and self.servers != 1:
@@ -207,7 +214,7 @@ def config_from(d: dict[str, Any], path: Any) -> Config:
     """
     names = {f.name for f in dataclasses.fields(Config)}
     known = {k: v for k, v in d.items() if k in names}
-    for name in ("eval_trajectories", "train_trajectories"):
+    for name in ("eval_trajectories", "train_trajectories", "eco_weights"):
         if name in known:
             known[name] = tuple(known[name])
     for name, value in LEGACY_VALUES.items():  # a config saved before the setting existed

@@ -109,7 +109,7 @@ def train(
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
-            set_speed=cfg.set_speed, action=cfg.action,
+            set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)
     finally:

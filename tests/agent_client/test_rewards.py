@@ -82,3 +82,20 @@ def test_eco_reward_prefers_the_smooth_economical_step_at_the_same_gap():
     assert ev(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0) != smooth  # the EV's own energy model
     with pytest.raises(ValueError, match="reward 'speed'"):
         make_reward("speed", "ice")
+
+
+def test_eco_closing_term_penalises_a_speed_difference_to_the_lead_either_way():
+    from agent_client.rewards import CLOSING_FULL, ECO_WEIGHTS, closing_term, eco_reward, make_reward
+
+    assert closing_term(30.0, 30.0) == 0.0
+    assert closing_term(30.0, 30.0 + CLOSING_FULL / 2) == closing_term(30.0, 30.0 - CLOSING_FULL / 2) == 0.5
+    assert closing_term(30.0, 0.0) == 1.0  # saturates
+    matched = eco_reward(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=30.0)
+    closing = eco_reward(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=25.0)
+    assert closing == pytest.approx(matched - ECO_WEIGHTS[3] / sum(ECO_WEIGHTS))
+    assert eco_reward(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0) == matched  # no lead speed given: no closing term
+    # the weights reach the reward; a zero closing weight turns the term off
+    off = make_reward("eco", "ice", (1.0, 0.5, 0.25, 0.0))
+    assert off(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=25.0) == off(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=30.0)
+    with pytest.raises(ValueError, match="needs 4 weights"):
+        make_reward("eco", "ice", (1.0, 0.5))

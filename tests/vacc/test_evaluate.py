@@ -91,7 +91,7 @@ def test_ddqn_methods_drive_from_the_models_folder(tmp_path, zoom):
 
 
 def test_eco_model_joins_the_default_methods_with_a_pareto_figure(tmp_path):
-    """A shipped <scenario>-eco.pt (force steps) is a column of the default table; fig_pareto plots every method."""
+    """A shipped <scenario>-eco.pt is a column of the default table; fig_pareto plots every method."""
     from agent_client.rl.checkpoint import save_policy
     from agent_client.rl.config import Config
     from agent_client.rl.network import QNetwork
@@ -108,7 +108,7 @@ def test_eco_model_joins_the_default_methods_with_a_pareto_figure(tmp_path):
     result = vacc("evaluate", "--out", str(out), "--models", str(models), "--duration", "2", "--jobs", "2")
     assert result.returncode == 0, result.stderr
     header = next(csv.reader((out / "table.csv").open()))
-    assert "Eco DDQN (force steps)" in header and "Traditional ACC" in header
+    assert "Eco DDQN" in header and "Traditional ACC" in header
     forces = np.loadtxt(out / "logs" / "ddqn-eco-test-1.csv", delimiter=",", skiprows=1, usecols=6)
     assert np.all(np.abs(np.diff(forces)) <= 0.5 + 1e-9)  # it holds its force between steps
     for ext in ("png", "pdf"):

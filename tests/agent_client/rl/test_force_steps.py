@@ -1,4 +1,4 @@
-"""The "steps" action type: increments of a held force, the controls it observes, end to end."""
+"""The held-force action types ("steps" and "ramp"): the force, the controls they observe, end to end."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from agent_client.actions import FORCE_STEPS, ForceSteps, make_action_type
+from agent_client.actions import EMERGENCY_LEVEL, FORCE_STEPS, RAMP_RATE, ForceRamp, ForceSteps, make_action_type
+from protocol.constants import A_MAX, A_MIN, FORCES
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.evaluation import score
@@ -36,6 +37,33 @@ def test_force_steps_stay_on_their_grid_and_in_range():
         make_action_type("torque")
 
 
+def test_ramp_moves_toward_the_chosen_level_at_a_bounded_rate():
+    ramp = ForceRamp()
+    rng = np.random.default_rng(0)
+    seen, prev = [], 0.0
+    for _ in range(3000):
+        action = int(rng.integers(1, len(FORCES)))  # any level but the emergency brake
+        u = ramp.force(action)
+        assert abs(u - prev) <= RAMP_RATE + 1e-12  # the actuator's rate, whatever the policy asks
+        assert min(prev, FORCES[action]) - 1e-12 <= u <= max(prev, FORCES[action]) + 1e-12  # toward the target, never past it
+        assert abs(u * 100 - round(u * 100)) < 1e-9  # no float drift
+        seen.append(u)
+        prev = u
+    # The rate is comfortable in both directions: under ISO 15622's 2.5 m/s^3 over 0.1 s.
+    assert RAMP_RATE * A_MAX / 0.1 < 2.5 and RAMP_RATE * -A_MIN / 0.1 < 2.5
+    for _ in range(60):
+        u = ramp.force(len(FORCES) - 1)
+    assert u == 1.0  # a held level is reached and kept
+    assert ramp.force(EMERGENCY_LEVEL) == -1.0  # the full brake acts at once
+    assert ramp.force(10) == pytest.approx(-1.0 + RAMP_RATE)  # and is released at the rate
+    ramp.reset()
+    assert ramp.u == 0.0 and ramp.controls(20.0).tolist() == [0.0, 20.0]
+    ramp.force(20)
+    ramp.observe(0.0)  # the vehicle achieved nothing (the limiter): anti-windup, as for steps
+    assert ramp.u == 0.0
+    assert make_action_type("ramp").n == len(FORCES)
+
+
 def test_env_observes_the_held_force_and_the_set_speed():
     from agent_client.env import VisionACCEnv
     from agent_client.launcher import local_server
@@ -55,6 +83,23 @@ def test_env_observes_the_held_force_and_the_set_speed():
             assert obs["controls"][-2].tolist() == pytest.approx([0.1, 25.0])  # two steps back (stride 2)
             env.reset(seed=4)
             assert env.actions.u == 0.0  # released at every episode start
+        finally:
+            env.close()
+
+
+def test_env_ramps_the_force_it_sends_to_the_simulator():
+    from agent_client.env import VisionACCEnv
+    from agent_client.launcher import local_server
+
+    with local_server() as addr:
+        env = VisionACCEnv(addr, episode_seconds=2.0, action="ramp", set_speed=25.0)
+        try:
+            assert env.action_space.n == len(FORCES) and "controls" in env.observation_space.spaces
+            env.reset(options={"seed": 4, "host_speed": 15.0})
+            forces = [env.step(len(FORCES) - 1)[-1]["force"] for _ in range(3)]  # ask for full throttle
+            assert forces == pytest.approx([RAMP_RATE, 2 * RAMP_RATE, 3 * RAMP_RATE])
+            obs, *_, info = env.step(EMERGENCY_LEVEL)
+            assert info["force"] == -1.0 and obs["controls"][-1].tolist() == pytest.approx([-1.0, 25.0])
         finally:
             env.close()
 
@@ -107,6 +152,25 @@ def test_config_checks_the_action_and_the_training_mix():
     assert e.value.field == "train_trajectories"
     result = CliRunner().invoke(main, ["train", "--reward", "eco", "--steps", "10", "--train-trajectories", "stoped", "--out", "unused"])
     assert result.exit_code == 2 and "--train-trajectories" in result.output and "stoped" in result.output
+
+
+@pytest.mark.parametrize(
+    ("weights", "message"),
+    [("1,0.5", "needs 4 weights"), ("1,x,0,0", "not a comma-separated list of numbers"), ("0,1,1,1", "the gap's > 0"), ("1,-1,0,0", ">= 0")],
+)
+def test_eco_weights_are_checked_against_their_option(weights, message):
+    result = CliRunner().invoke(main, ["train", "--reward", "eco", "--steps", "10", "--eco-weights", weights, "--out", "unused"])
+    assert result.exit_code == 2 and "--eco-weights" in result.output and message in result.output
+
+
+def test_eco_weights_round_trip_and_old_configs_load_without_the_closing_term():
+    from agent_client.rl.config import config_dict, config_from
+
+    cfg = Config(reward="eco", eco_weights=(1.0, 0.2, 0.3, 0.4))
+    assert config_from(config_dict(cfg), "x").eco_weights == (1.0, 0.2, 0.3, 0.4)
+    old = config_dict(Config())
+    del old["eco_weights"]  # a run from before the closing term
+    assert config_from(old, "x").eco_weights == (1.0, 0.5, 0.25, 0.0)
 
 
 def test_best_pt_score_counts_the_55m_target_on_following_trajectories_only():
