@@ -12,8 +12,8 @@ from typing import Any
 
 from agent_client.actions import ACTION_TYPES
 from agent_client.errors import InputFileError
-from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.preprocess import ZOOMS
+from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.rl.evaluation import eval_episode
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,

@@ -85,7 +85,13 @@ def test_eco_reward_prefers_the_smooth_economical_step_at_the_same_gap():
 
 
 def test_eco_closing_term_penalises_a_speed_difference_to_the_lead_either_way():
-    from agent_client.rewards import CLOSING_FULL, ECO_WEIGHTS, closing_term, eco_reward, make_reward
+    from agent_client.rewards import (
+        CLOSING_FULL,
+        ECO_WEIGHTS,
+        closing_term,
+        eco_reward,
+        make_reward,
+    )
 
     assert closing_term(30.0, 30.0) == 0.0
     assert closing_term(30.0, 30.0 + CLOSING_FULL / 2) == closing_term(30.0, 30.0 - CLOSING_FULL / 2) == 0.5

@@ -7,8 +7,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from agent_client.actions import EMERGENCY_LEVEL, FORCE_STEPS, RAMP_RATE, ForceRamp, ForceSteps, make_action_type
-from protocol.constants import A_MAX, A_MIN, FORCES
+from agent_client.actions import (
+    EMERGENCY_LEVEL,
+    FORCE_STEPS,
+    RAMP_RATE,
+    ForceRamp,
+    ForceSteps,
+    make_action_type,
+)
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.evaluation import score
@@ -16,6 +22,7 @@ from agent_client.rl.network import QNetwork, transfer_weights
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
 from agent_client.stacker import FrameStacker
+from protocol.constants import A_MAX, A_MIN, FORCES
 from vacc.cli import main
 
 
