@@ -26,6 +26,7 @@ Kept apart from the env and the network, as highway-env keeps ``action.py``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -68,6 +69,8 @@ class ActionType(Protocol):
 
     def observe(self, accel: float) -> None: ...
 
+    def imitate(self, u: float) -> int: ...
+
     def controls(self, set_speed: float) -> np.ndarray | None: ...
 
 
@@ -81,6 +84,10 @@ class ForceLevels:
 
     def force(self, action: int) -> float:
         return float(FORCES[action])
+
+    def imitate(self, u: float) -> int:
+        """The level nearest a teacher's force ``u``."""
+        return _nearest(FORCES, FORCES, u)
 
     def observe(self, accel: float) -> None:
         pass
@@ -118,6 +125,11 @@ class ForceSteps(HeldForce):
 
     name, n = "steps", len(FORCE_STEPS)
 
+    def imitate(self, u: float) -> int:
+        """The step that brings the held force nearest a teacher's force ``u``."""
+        nominal = [self.u + d for d in FORCE_STEPS]
+        return _nearest([float(np.clip(f, -1.0, 1.0)) for f in nominal], nominal, u)
+
     def force(self, action: int) -> float:
         # rounded to the 0.02 grid, so that a long run of steps never drifts off it
         self.u = float(np.clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0))
@@ -136,6 +148,21 @@ class ForceRamp(HeldForce):
         else:  # rounded to 0.01, so that a long run of ramps never drifts off the levels
             self.u = round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
         return self.u
+
+    def imitate(self, u: float) -> int:
+        """The level whose ramp brings the held force nearest a teacher's force ``u`` (of
+        several that do, the level nearest ``u``): the full brake only where it is nearer
+        than any ramp."""
+        reach = [
+            -1.0 if a == EMERGENCY_LEVEL else round(self.u + float(np.clip(f - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+            for a, f in enumerate(FORCES)
+        ]  # fmt: skip
+        return _nearest(reach, FORCES, u)
+
+
+def _nearest(forces: Sequence[float], nominal: Sequence[float], u: float) -> int:
+    """The action whose force is nearest ``u``; ties go to the nominal force nearest ``u``."""
+    return min(range(len(forces)), key=lambda a: (round(abs(forces[a] - u), 9), abs(nominal[a] - u)))
 
 
 def make_action_type(name: str) -> ActionType:

@@ -208,7 +208,7 @@ class VisionACCEnv(gym.Env):
 
     @staticmethod
     def _info(obs: dict[str, Any]) -> dict[str, Any]:
-        keys = ("t", "frame", "gap", "v_host", "v_lead", "accel", "force", "collision", "reason", "set_speed")
+        keys = ("t", "frame", "gap", "v_host", "v_lead", "a_lead", "accel", "force", "collision", "reason", "set_speed")
         return {k: obs[k] for k in keys}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):

@@ -23,9 +23,10 @@ from protocol.scenarios import (
     TEST_TRAJECTORIES,
 )
 
-__all__ = ["Config", "ConfigError", "SCHEDULES", "RESUMABLE_CHANGES", "config_dict", "config_from"]
+__all__ = ["Config", "ConfigError", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
 SCHEDULES = ("parallel", "serial")
+TEACHERS = ("none", "acc")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -33,7 +34,7 @@ SCHEDULES = ("parallel", "serial")
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
-LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "eco_weights": (1.0, 0.5, 0.25, 0.0)}
+LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "eco_weights": (1.0, 0.5, 0.25, 0.0)}
 
 
 class ConfigError(ValueError):
@@ -129,6 +130,14 @@ class Config:
     """Steps between full checkpoints (taken at the next episode end)."""
     init_from: str | None = None
     """A policy checkpoint whose weights start the run (fine-tuning, e.g. force from gap)."""
+    teacher: str = "none"
+    """"none": Double DQN on the reward. "acc": learn from a privileged teacher instead
+    (DAgger, docs/training.md): the traditional ACC, which reads the gap and the lead's
+    speed, labels every visited state with the action nearest its force; the network,
+    from pixels as ever, learns the labels by cross-entropy."""
+    teacher_steps: int = 50_000
+    """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
+    falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
     torch_threads: int = 2
     """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
     machine the weights are bit-identical to one thread's)."""
@@ -157,6 +166,12 @@ class Config:
             raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
         if (why := check_eco_weights(tuple(self.eco_weights))) is not None:
             raise bad("eco_weights", why)
+        if self.teacher not in TEACHERS:
+            raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
+        if self.teacher != "none" and self.servers != 1:
+            raise bad("teacher", "a teacher needs servers=1")
+        if self.teacher_steps < 1:
+            raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
         if self.action != "levels" and self.servers != 1:

@@ -25,6 +25,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
+from agent_client.controllers.acc import AccController
 from agent_client.errors import InputFileError
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
@@ -158,6 +159,8 @@ class Learner:
         self.target.load_state_dict(self.q.state_dict())
         self.acting = self._network().eval() if self.parallel else self.q
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
+        # DAgger: the privileged teacher that labels states (teacher runs only)
+        self.teacher = AccController() if cfg.teacher == "acc" else None
         self.updates = 0
         self.best_score = math.inf
         self.saved: dict[str, Any] = {}
@@ -252,24 +255,21 @@ class Learner:
     # ------------------------------------------------------------------ learning
 
     def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float] | None:
-        """One Double-DQN gradient step on a replay batch; logs losses at ``log_step``.
+        """One gradient step on a replay batch: Double DQN, or with a teacher the
+        cross-entropy of the network's outputs (as logits) to the teacher's labels;
+        logs losses at ``log_step``.
 
         Returns:
-            (Huber loss, mean Q of the taken actions) when ``log_step`` is given.
+            (loss, mean output of the stored actions) when ``log_step`` is given.
         """
         cfg, dev = self.cfg, self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
-        next_frames, next_speeds, next_controls = b.next_frames.to(dev), b.next_speeds.to(dev), b.next_controls.to(dev)
-        with torch.no_grad():
-            next_q_online = self.q(next_frames, next_speeds, next_controls)  # [B, A]
-            next_q_target = self.target(next_frames, next_speeds, next_controls)  # [B, A]
-            # after a termination: the terminal reward forever, r / (1 - γ), or 0
-            terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
-            td_target = double_dqn_target(
-                b.returns.to(dev), b.terminated.to(dev), next_q_online, next_q_target, b.discounts.to(dev), terminal_values
-            )  # [B]
-        q_taken = self.q(frames, speeds, controls).gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
-        loss = F.smooth_l1_loss(q_taken, td_target)  # Huber
+        q_all = self.q(frames, speeds, controls)  # [B, A]
+        q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
+        if self.teacher is not None:
+            loss = F.cross_entropy(q_all, b.actions.to(dev))
+        else:
+            loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
         self.optimizer.zero_grad()
         loss.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
@@ -278,6 +278,17 @@ class Learner:
         if log_step is None:
             return None
         return loss.item(), q_taken.mean().item()
+
+    @torch.no_grad()
+    def _td_target(self, b: ReplaySamples) -> torch.Tensor:
+        """``[B]`` Double-DQN targets of a batch (n-step returns, the target network)."""
+        cfg, dev = self.cfg, self.device
+        next_frames, next_speeds, next_controls = b.next_frames.to(dev), b.next_speeds.to(dev), b.next_controls.to(dev)
+        next_q_online = self.q(next_frames, next_speeds, next_controls)  # [B, A]
+        next_q_target = self.target(next_frames, next_speeds, next_controls)  # [B, A]
+        # after a termination: the terminal reward forever, r / (1 - γ), or 0
+        terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
+        return double_dqn_target(b.returns.to(dev), b.terminated.to(dev), next_q_online, next_q_target, b.discounts.to(dev), terminal_values)
 
     def sync_target(self) -> None:
         """Copy the online network into the target network (after any update in flight)."""
@@ -305,7 +316,8 @@ class Learner:
 
     def _pending(self, losses: tuple[float, float] | None, step: int | None) -> None:
         if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
-            self._pending_scalars += [("losses/td_loss", losses[0], step), ("losses/q_values", losses[1], step)]
+            names = ("losses/teacher_ce", "losses/teacher_logit") if self.teacher is not None else ("losses/td_loss", "losses/q_values")
+            self._pending_scalars += [(names[0], losses[0], step), (names[1], losses[1], step)]
 
     def _log_losses(self, losses: tuple[float, float] | None, step: int | None) -> None:
         self._pending(losses, step)

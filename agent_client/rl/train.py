@@ -145,16 +145,16 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             options: dict[str, Any] = {"seed": int(rng.integers(2**31))}
             if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
                 options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
-            obs, _ = env.reset(options=options)
+            obs, info = env.reset(options=options)
             memory.start(obs)
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
             while not done and state.global_step < cfg.total_steps and not STOP.is_set():
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
-                action = int(rng.integers(env.action_space.n)) if rng.random() < epsilon else learner.act(obs)
-                obs, reward, terminated, truncated, _ = env.step(action)
-                memory.add(action, reward, terminated, truncated, obs)
+                action, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
+                obs, reward, terminated, truncated, info = env.step(action)
+                memory.add(stored, reward, terminated, truncated, obs)
                 episode_return += reward
                 episode_len += 1
                 done = terminated or truncated
@@ -182,6 +182,23 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     finally:
         bar.close()
     return time.perf_counter() - t_start
+
+
+def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[int, int]:
+    """The action to take and the one to store.
+
+    Double DQN: ε-greedy, stored as taken. With a teacher (DAgger): the teacher's label is
+    stored whoever drives; the teacher drives a share β of the steps, falling from 1 to 0
+    over ``teacher_steps``, and the ε-greedy student the rest, so that it learns the
+    teacher's answer in the states its own mistakes lead to.
+    """
+    rng = learner.acting_rng
+    if learner.teacher is not None:
+        label = env.actions.imitate(learner.teacher(info))  # privileged: reads the gap, never the network
+        if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
+            return label, label
+    action = int(rng.integers(env.action_space.n)) if rng.random() < epsilon else learner.act(obs)
+    return action, (label if learner.teacher is not None else action)
 
 
 def _evaluate_and_checkpoint(cfg: Config, learner: Learner, memory: ReplayMemory, state: LoopState, grid: _Schedule) -> None:

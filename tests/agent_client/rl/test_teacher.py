@@ -1,0 +1,99 @@
+"""Learning from a privileged teacher (DAgger): labels through the action types, the
+cross-entropy update, and a teacher run end to end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from agent_client.actions import EMERGENCY_LEVEL, FORCE_STEPS, RAMP_RATE, ForceLevels, ForceRamp, ForceSteps
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config, ConfigError
+from agent_client.rl.learner import Learner
+from agent_client.rl.replay import ReplayMemory
+from agent_client.rl.train import train
+from agent_client.stacker import FrameStacker
+from protocol.constants import FORCES
+from vacc.cli import main
+
+
+def _next_force(kind: str, held: float, action: int) -> float:
+    t = {"levels": ForceLevels, "steps": ForceSteps, "ramp": ForceRamp}[kind]()
+    if kind != "levels":
+        t.u = held
+    return t.force(action)
+
+
+@pytest.mark.parametrize("kind", ["levels", "steps", "ramp"])
+def test_the_label_is_the_action_whose_force_is_nearest_the_teachers(kind):
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        held, u = round(float(rng.uniform(-1, 1)), 2), float(rng.uniform(-1, 1))
+        t = {"levels": ForceLevels, "steps": ForceSteps, "ramp": ForceRamp}[kind]()
+        if kind != "levels":
+            t.u = held
+        label = t.imitate(u)
+        assert kind == "levels" or t.u == held  # labelling changes nothing
+        n = len(FORCE_STEPS) if kind == "steps" else len(FORCES)
+        best = min(abs(_next_force(kind, held, a) - u) for a in range(n))
+        assert abs(_next_force(kind, held, label) - u) == pytest.approx(best, abs=1e-9)
+
+
+def test_the_ramp_label_brakes_at_once_only_where_the_teacher_brakes_hard():
+    ramp = ForceRamp()
+    assert ramp.imitate(-0.9) == EMERGENCY_LEVEL  # from 0, the ramp would reach -0.04
+    assert FORCES[ramp.imitate(-0.3)] == pytest.approx(-0.3)  # a ramp toward the teacher's level
+    assert FORCES[ramp.imitate(0.02)] in (0.0, 0.1) and abs(_next_force("ramp", 0.0, ramp.imitate(0.02)) - 0.02) <= RAMP_RATE / 2
+
+
+def test_config_checks_the_teacher():
+    with pytest.raises(ConfigError, match="servers=1") as e:
+        Config(teacher="acc", servers=2)
+    assert e.value.field == "teacher"
+    result = CliRunner().invoke(main, ["train", "--reward", "eco", "--steps", "10", "--teacher", "hdm", "--out", "unused"])
+    assert result.exit_code == 2 and "--teacher" in result.output
+
+
+def test_the_teacher_update_learns_the_labels(tmp_path):
+    """Cross-entropy to the stored labels: after a few steps the network answers them (a TD update would not)."""
+    cfg = Config(reward="eco", action="ramp", teacher="acc", total_steps=10, batch_size=16, learning_rate=1e-3, torch_threads=1)
+    learner = Learner(cfg, tmp_path, trainer="single")
+    memory, stacker = ReplayMemory(64, 8, 1, n_controls=2), FrameStacker(8, 1)
+    rng = np.random.default_rng(0)
+    obs = stacker.push(rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8), 20.0, np.array([0.0, 30.0], np.float32))
+    memory.start(obs)
+    label = 17  # whatever the state, the teacher says +0.7 (rewards are all 0: nothing to bootstrap)
+    for _ in range(40):
+        obs = stacker.push(rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8), 20.0, np.array([0.0, 30.0], np.float32))
+        memory.add(label, 0.0, False, False, obs)
+    for _ in range(40):
+        learner.update(memory.sample(16, rng, 1, 0.99))
+    b = memory.sample(16, rng, 1, 0.99)
+    with torch.no_grad():
+        assert (learner.q(b.frames, b.speeds, b.controls).argmax(1) == label).all()
+    learner.close()
+
+
+def test_a_teacher_run_resumes_exactly_and_its_student_drives(tmp_path):
+    cfg = Config(
+        reward="eco", action="ramp", teacher="acc", teacher_steps=60, train_trajectories=("random", "stopped"), total_steps=120,
+        learning_starts=30, train_every=4, batch_size=8, buffer_size=400, start_e=0.05, end_e=0.05, episode_seconds=3.0,
+        checkpoint_every=30, eval_every=0, eval_trajectories=("stopped:1",), eval_seconds=1.0, log_every=20,
+    )  # fmt: skip
+    train(cfg, tmp_path / "whole", progress=False)
+    train(Config(**{**cfg.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = (torch.load(tmp_path / d / "latest.pt", weights_only=True) for d in ("whole", "split"))
+    assert a["rng"]["numpy"] == b["rng"]["numpy"]
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    scalars = (tmp_path / "whole" / "scalars.csv").read_text()
+    assert "losses/teacher_ce" in scalars and "losses/td_loss" not in scalars
+    log = tmp_path / "drive.csv"
+    result = CliRunner().invoke(
+        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "stopped",
+               "--duration", "2", "--log", str(log)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
