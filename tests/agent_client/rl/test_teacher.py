@@ -8,7 +8,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from agent_client.actions import EMERGENCY_LEVEL, FORCE_STEPS, RAMP_RATE, ForceLevels, ForceRamp, ForceSteps
+from agent_client.actions import (
+    EMERGENCY_LEVEL,
+    FORCE_STEPS,
+    RAMP_RATE,
+    ForceLevels,
+    ForceRamp,
+    ForceSteps,
+)
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.learner import Learner
