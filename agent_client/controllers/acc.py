@@ -60,8 +60,12 @@ class AccController:
 
     name = "acc"
 
+    fixed_gap: float | None = None  # [m] a constant d_ref instead of the time gap (the paper's 55 m target)
+
     def reference_gap(self, v_host: float) -> float:
-        """d_ref [m] at host speed ``v_host`` [m/s] (eq. 2)."""
+        """d_ref [m] at host speed ``v_host`` [m/s] (eq. 2, or ``fixed_gap``)."""
+        if self.fixed_gap is not None:
+            return self.fixed_gap
         return max(v_host * self.t_gap, self.d_safe)
 
     def reset(self) -> None:

@@ -104,3 +104,19 @@ def test_a_teacher_run_resumes_exactly_and_its_student_drives(tmp_path):
                "--duration", "2", "--log", str(log)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
+
+
+def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
+    from agent_client.controllers.acc import AccController
+    from agent_client.rl.config import TEACHERS
+    from agent_client.rl.learner import make_teacher
+
+    assert make_teacher("none") is None
+    assert make_teacher("acc") == AccController()
+    fixed = make_teacher("acc-55")
+    assert [fixed.reference_gap(v) for v in (0.0, 10.0, 30.0)] == [55.0] * 3
+    assert [AccController().reference_gap(v) for v in (0.0, 10.0, 30.0)] == [5.0, 18.0, 54.0]
+    # at the 55 m target and the lead's speed, neither teacher asks for any force
+    obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert fixed(obs) == 0.0
+    assert set(TEACHERS) == {"none", "acc", "acc-55"}
