@@ -69,7 +69,7 @@ class ActionType(Protocol):
 
     def observe(self, accel: float) -> None: ...
 
-    def imitate(self, u: float) -> int: ...
+    def imitate(self, u: float, hard_brake: float = 0.0) -> int: ...
 
     def controls(self, set_speed: float) -> np.ndarray | None: ...
 
@@ -85,7 +85,7 @@ class ForceLevels:
     def force(self, action: int) -> float:
         return float(FORCES[action])
 
-    def imitate(self, u: float) -> int:
+    def imitate(self, u: float, hard_brake: float = 0.0) -> int:
         """The level nearest a teacher's force ``u``."""
         return _nearest(FORCES, FORCES, u)
 
@@ -125,7 +125,7 @@ class ForceSteps(HeldForce):
 
     name, n = "steps", len(FORCE_STEPS)
 
-    def imitate(self, u: float) -> int:
+    def imitate(self, u: float, hard_brake: float = 0.0) -> int:
         """The step that brings the held force nearest a teacher's force ``u``."""
         nominal = [self.u + d for d in FORCE_STEPS]
         return _nearest([float(np.clip(f, -1.0, 1.0)) for f in nominal], nominal, u)
@@ -149,14 +149,17 @@ class ForceRamp(HeldForce):
             self.u = round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
         return self.u
 
-    def imitate(self, u: float) -> int:
+    def imitate(self, u: float, hard_brake: float = 0.0) -> int:
         """The level whose ramp brings the held force nearest a teacher's force ``u`` (of
-        several that do, the level nearest ``u``): the full brake only where it is nearer
-        than any ramp."""
+        several that do, the level nearest ``u``); the full brake only where it is nearer
+        than any ramp and the teacher decelerates at ``hard_brake`` [m/s^2] or more (0: any
+        braking), since the full brake is released only at the ramp's rate."""
         reach = [
             -1.0 if a == EMERGENCY_LEVEL else round(self.u + float(np.clip(f - self.u, -RAMP_RATE, RAMP_RATE)), 2)
             for a, f in enumerate(FORCES)
         ]  # fmt: skip
+        if -accel_of_force(u) < hard_brake:
+            reach[EMERGENCY_LEVEL] = math.inf  # not a candidate
         return _nearest(reach, FORCES, u)
 
 

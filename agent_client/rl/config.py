@@ -34,7 +34,7 @@ TEACHERS = ("none", "acc", "acc-55")  # who labels the states in teacher (DAgger
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
-LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "eco_weights": (1.0, 0.5, 0.25, 0.0)}
+LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "teacher_brake": 0.0, "eco_weights": (1.0, 0.5, 0.25, 0.0)}
 
 
 class ConfigError(ValueError):
@@ -137,6 +137,10 @@ class Config:
     from pixels as ever, learns the labels by cross-entropy. "acc-55": the same ACC law
     aiming at the paper's 55 m at every speed instead of its 1.8 s time gap, with gains
     that hold it (beta 0.3, gamma 1.0)."""
+    teacher_brake: float = 3.5
+    """[m/s^2] (teacher, ramp action) the full brake, which acts at once and is released
+    only at the ramp's rate, is a label only where the teacher decelerates at least this
+    hard: ISO 15622's comfort limit. 0: wherever it is the nearest force."""
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
@@ -172,6 +176,8 @@ class Config:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
         if self.teacher != "none" and self.servers != 1:
             raise bad("teacher", "a teacher needs servers=1")
+        if not self.teacher_brake >= 0.0:
+            raise bad("teacher_brake", "must be >= 0")
         if self.teacher_steps < 1:
             raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:

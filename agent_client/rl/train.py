@@ -194,7 +194,7 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     """
     rng = learner.acting_rng
     if learner.teacher is not None:
-        label = env.actions.imitate(learner.teacher(info))  # privileged: reads the gap, never the network
+        label = env.actions.imitate(learner.teacher(info), cfg.teacher_brake)  # privileged: reads the gap, never the network
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
             return label, label
     action = int(rng.integers(env.action_space.n)) if rng.random() < epsilon else learner.act(obs)

@@ -120,3 +120,19 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert set(TEACHERS) == {"none", "acc", "acc-55"}
+
+
+def test_the_full_brake_is_a_label_only_where_the_teacher_brakes_beyond_iso_comfort():
+    from agent_client.rl.config import config_dict, config_from
+
+    ramp = ForceRamp()
+    moderate = -3.2 / 5.5  # 3.2 m/s^2: the full brake is nearer, but its release would overshoot the teacher
+    assert ramp.imitate(moderate) == EMERGENCY_LEVEL  # hard_brake 0: the nearest force
+    assert FORCES[ramp.imitate(moderate, hard_brake=3.5)] == pytest.approx(-0.6)  # a ramp toward it
+    assert ramp.imitate(-4.0 / 5.5, hard_brake=3.5) == EMERGENCY_LEVEL  # beyond 3.5 m/s^2: at once
+    old = config_dict(Config(teacher="acc"))
+    del old["teacher_brake"]  # a teacher run from before the setting: the nearest force, as it was
+    assert config_from(old, "x").teacher_brake == 0.0
+    assert Config().teacher_brake == 3.5
+    with pytest.raises(ConfigError, match=">= 0"):
+        Config(teacher_brake=-1.0)
