@@ -95,7 +95,7 @@ def plot_learning_curve(scalars_csv: str | Path, out_png: str | Path, title: str
     w_steps, worst = s.get("eval/gap_rmse_m", (np.zeros(0), np.zeros(0)))
     hi = float(max(np.max(worst) if len(worst) else 10.0, 10.0))
     hi = min(hi, 100.0)
-    to_px2 = _panel(img, 40 + PANEL_H + 60, x_max, 0.0, hi, "test-1..4 evaluation (greedy)", "gap RMSE to 55 m [m]: mean (blue), worst (red)")
+    to_px2 = _panel(img, 40 + PANEL_H + 60, x_max, 0.0, hi, "evaluation on the run's --eval-trajectories (greedy)", "gap RMSE to 55 m [m]: mean (blue), worst (red)")
     for xs, ys, color in ((e_steps, rmse, AVG), (w_steps, worst, EVAL)):
         if len(xs):
             pts = to_px2(xs, ys)
