@@ -141,12 +141,16 @@ class ForceRamp(HeldForce):
 
     name, n = "ramp", N_ACTIONS
 
-    def force(self, action: int) -> float:
+    def _next(self, action: int) -> float:
+        """The force ``action`` gives from the one held now (rounded to 0.01, so that a long
+        run of ramps never drifts off the levels)."""
         target = float(FORCES[action])
         if action == EMERGENCY_LEVEL:
-            self.u = target
-        else:  # rounded to 0.01, so that a long run of ramps never drifts off the levels
-            self.u = round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+            return target
+        return round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+
+    def force(self, action: int) -> float:
+        self.u = self._next(action)
         return self.u
 
     def imitate(self, u: float, hard_brake: float = 0.0) -> int:
@@ -154,10 +158,7 @@ class ForceRamp(HeldForce):
         several that do, the level nearest ``u``); the full brake only where it is nearer
         than any ramp and the teacher decelerates at ``hard_brake`` [m/s^2] or more (0: any
         braking), since the full brake is released only at the ramp's rate."""
-        reach = [
-            -1.0 if a == EMERGENCY_LEVEL else round(self.u + float(np.clip(f - self.u, -RAMP_RATE, RAMP_RATE)), 2)
-            for a, f in enumerate(FORCES)
-        ]  # fmt: skip
+        reach = [self._next(a) for a in range(self.n)]
         if -accel_of_force(u) < hard_brake:
             reach[EMERGENCY_LEVEL] = math.inf  # not a candidate
         return _nearest(reach, FORCES, u)
