@@ -21,6 +21,11 @@ Kept apart from the env and the network, as highway-env keeps ``action.py``.
   mapping from what it sees to the force it wants, as the paper's does, so it need not
   integrate (the "steps" type's slow limit cycle); the actuator makes it smooth. It
   observes the held force and the set speed as ``controls``, with the same anti-windup.
+* ``ramp-fine`` (beyond the paper): the ramp with :data:`FINE_LEVELS` as its 21 targets,
+  dense near zero. The paper's levels are 0.1 apart (0.35 m/s^2 of throttle, 0.55 of
+  brake), and a ramp can hold only a level: a student of the ACC, whose steady following
+  needs forces of 0.01-0.06, pulsed between -0.1, 0 and +0.1 (jerk and fuel the ACC does
+  not spend). Holding 0.02 or 0.05 lets it follow as gently as its teacher.
 """
 
 from __future__ import annotations
@@ -31,12 +36,12 @@ from typing import Protocol
 
 import numpy as np
 
-from protocol.constants import A_MAX, A_MIN, FORCES, N_ACTIONS
+from protocol.constants import A_MAX, A_MIN, FORCE_LEVELS, FORCES, N_ACTIONS
 from sim_server.vehicle import accel_of_force
 
-__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "make_action_type"]
+__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
 
-ACTION_TYPES = ("levels", "steps", "ramp")
+ACTION_TYPES = ("levels", "steps", "ramp", "ramp-fine")
 # Force increments of the "steps" type: fine near zero, one hard brake (a stopped car
 # ahead needs -4 m/s^2 within about 0.3 s), and no hard throttle, which comfort never needs.
 FORCE_STEPS = (-0.5, -0.1, -0.02, 0.0, 0.02, 0.1)
@@ -46,6 +51,9 @@ CONTROLS = ("force", "set_speed")
 # The "ramp" type's largest change of the held force per step, toward the chosen level.
 RAMP_RATE = 0.04
 EMERGENCY_LEVEL = 0  # the "ramp" level that acts at once: the full brake
+# The "ramp-fine" targets: 21 levels as the paper's, from the full brake to full throttle,
+# dense near zero where steady following lives (0.02 of force is 0.07-0.11 m/s^2).
+FINE_LEVELS = (-1.0, -0.8, -0.6, -0.45, -0.3, -0.2, -0.14, -0.09, -0.05, -0.02, 0.0, 0.02, 0.05, 0.09, 0.14, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)
 FORCE_GRID = 0.02  # every force the "steps" type holds is a multiple of this
 WINDUP_TOLERANCE = 1e-3  # [m/s^2] achieved acceleration this far short of the command: limited
 
@@ -140,11 +148,12 @@ class ForceRamp(HeldForce):
     """The paper's 21 levels as targets of a rate-limited held force."""
 
     name, n = "ramp", N_ACTIONS
+    levels: Sequence[float] = FORCE_LEVELS
 
     def _next(self, action: int) -> float:
         """The force ``action`` gives from the one held now (rounded to 0.01, so that a long
         run of ramps never drifts off the levels)."""
-        target = float(FORCES[action])
+        target = float(self.levels[action])
         if action == EMERGENCY_LEVEL:
             return target
         return round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
@@ -161,7 +170,14 @@ class ForceRamp(HeldForce):
         reach = [self._next(a) for a in range(self.n)]
         if -accel_of_force(u) < hard_brake:
             reach[EMERGENCY_LEVEL] = math.inf  # not a candidate
-        return _nearest(reach, FORCES, u)
+        return _nearest(reach, self.levels, u)
+
+
+class FineRamp(ForceRamp):
+    """The ramp with :data:`FINE_LEVELS` as its targets."""
+
+    name = "ramp-fine"
+    levels = FINE_LEVELS
 
 
 def _nearest(forces: Sequence[float], nominal: Sequence[float], u: float) -> int:
@@ -181,4 +197,6 @@ def make_action_type(name: str) -> ActionType:
         return ForceSteps()
     if name == "ramp":
         return ForceRamp()
+    if name == "ramp-fine":
+        return FineRamp()
     raise ValueError(f"action type {name!r} is not one of {ACTION_TYPES}")

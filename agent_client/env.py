@@ -53,11 +53,13 @@ class VisionACCEnv(gym.Env):
     ``action="ramp"``: ``Discrete(21)``, action ``a`` picks the level ``-1 + 0.1 a`` as
     the target of a held force that moves toward it by at most
     :data:`agent_client.actions.RAMP_RATE` per step; the full brake acts at once.
+    ``action="ramp-fine"``: the same with :data:`agent_client.actions.FINE_LEVELS` as
+    the 21 targets, dense near zero.
 
     ## Observation space
     ``Dict(frames=Box(0, 255, (8, 105, 150), uint8), speeds=Box(0, 60, (8,), float32))``:
     the last 8 preprocessed camera frames (oldest first, ``stack_stride`` control
-    steps apart) and the host speeds [m/s] at those frames. With ``action="steps"`` or ``"ramp"``,
+    steps apart) and the host speeds [m/s] at those frames. With a held-force action (``"steps"``, ``"ramp"``, ``"ramp-fine"``),
     also ``controls=Box((8, 2), float32)``: at each stacked frame the force then held
     (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
     The gap, the lead's speed and every other privileged quantity are never in the

@@ -24,7 +24,7 @@ class DDQNController:
     exactly what the network saw in training, and decides through
     :func:`~agent_client.rl.network.greedy_action`, the trainer's own inference path.
     Uses the camera image and the host speed of the observation only, and, for the
-    held-force action types ("steps", "ramp"), its own last force and the set speed the driver chose.
+    held-force action types ("steps", "ramp", "ramp-fine"), its own last force and the set speed the driver chose.
 
     Args:
         q: the Q-network.

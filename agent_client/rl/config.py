@@ -62,8 +62,9 @@ class Config:
     (agent_client/rewards.py; the ablation that chose them is in docs/training.md)."""
     action: str = "levels"
     """Action type (agent_client/actions.py): "levels", the paper's 21 force levels; "steps",
-    increments of a held force, fine near zero; or "ramp", the 21 levels as targets of a
-    rate-limited held force. The last two observe the held force and the set speed."""
+    increments of a held force, fine near zero; "ramp", the 21 levels as targets of a
+    rate-limited held force; or "ramp-fine", the ramp with 21 targets dense near zero. The
+    last three observe the held force and the set speed."""
     train_trajectories: tuple[str, ...] = ("random",)
     """Comma-separated lead trajectories of training episodes, one drawn per episode (repeat a
     name to weight it): "random" (the scenario's generator) and lead scenarios such as stopped,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from agent_client.actions import ACTION_TYPES
 from agent_client.controllers.ddqn import DDQNController
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
@@ -209,9 +210,12 @@ def _raw_obs(rng: np.random.Generator, gap: float) -> _Recording:
     )  # fmt: skip
 
 
-# steps: also the set speed (the driver's input) and the host's own acceleration (its
-# anti-windup: the force it achieved), never anything of the lead
-@pytest.mark.parametrize("action, allowed", [("levels", {"image", "image_shape", "v_host"}), ("steps", {"image", "image_shape", "v_host", "set_speed", "accel"})])
+# held-force types: also the set speed (the driver's input) and the host's own acceleration
+# (their anti-windup: the force it achieved), never anything of the lead
+HELD = {"image", "image_shape", "v_host", "set_speed", "accel"}
+
+
+@pytest.mark.parametrize("action, allowed", [("levels", {"image", "image_shape", "v_host"}), ("steps", HELD), ("ramp", HELD), ("ramp-fine", HELD)])
 def test_controller_reads_only_image_host_speed_and_set_speed(action, allowed):
     cfg = Config(action=action)
     ctl = DDQNController(QNetwork.of(cfg), cfg)
@@ -220,7 +224,7 @@ def test_controller_reads_only_image_host_speed_and_set_speed(action, allowed):
     assert obs.read <= allowed, f"the ddqn controller read {sorted(obs.read)}"
 
 
-@pytest.mark.parametrize("action", ["levels", "steps"])
+@pytest.mark.parametrize("action", ACTION_TYPES)
 def test_changing_the_gap_cannot_change_the_action(action):
     torch.manual_seed(0)
     cfg = Config(action=action)

@@ -9,12 +9,12 @@ import torch
 from click.testing import CliRunner
 
 from agent_client.actions import (
+    ACTION_TYPES,
     EMERGENCY_LEVEL,
-    FORCE_STEPS,
     RAMP_RATE,
-    ForceLevels,
+    FineRamp,
     ForceRamp,
-    ForceSteps,
+    make_action_type,
 )
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError
@@ -26,25 +26,26 @@ from protocol.constants import FORCES
 from vacc.cli import main
 
 
-def _next_force(kind: str, held: float, action: int) -> float:
-    t = {"levels": ForceLevels, "steps": ForceSteps, "ramp": ForceRamp}[kind]()
+def _held(kind: str, held: float):
+    t = make_action_type(kind)
     if kind != "levels":
         t.u = held
-    return t.force(action)
+    return t
 
 
-@pytest.mark.parametrize("kind", ["levels", "steps", "ramp"])
+def _next_force(kind: str, held: float, action: int) -> float:
+    return _held(kind, held).force(action)
+
+
+@pytest.mark.parametrize("kind", ACTION_TYPES)
 def test_the_label_is_the_action_whose_force_is_nearest_the_teachers(kind):
     rng = np.random.default_rng(0)
     for _ in range(300):
         held, u = round(float(rng.uniform(-1, 1)), 2), float(rng.uniform(-1, 1))
-        t = {"levels": ForceLevels, "steps": ForceSteps, "ramp": ForceRamp}[kind]()
-        if kind != "levels":
-            t.u = held
+        t = _held(kind, held)
         label = t.imitate(u)
         assert kind == "levels" or t.u == held  # labelling changes nothing
-        n = len(FORCE_STEPS) if kind == "steps" else len(FORCES)
-        best = min(abs(_next_force(kind, held, a) - u) for a in range(n))
+        best = min(abs(_next_force(kind, held, a) - u) for a in range(t.n))
         assert abs(_next_force(kind, held, label) - u) == pytest.approx(best, abs=1e-9)
 
 
@@ -53,6 +54,23 @@ def test_the_ramp_label_brakes_at_once_only_where_the_teacher_brakes_hard():
     assert ramp.imitate(-0.9) == EMERGENCY_LEVEL  # from 0, the ramp would reach -0.04
     assert FORCES[ramp.imitate(-0.3)] == pytest.approx(-0.3)  # a ramp toward the teacher's level
     assert FORCES[ramp.imitate(0.02)] in (0.0, 0.1) and abs(_next_force("ramp", 0.0, ramp.imitate(0.02)) - 0.02) <= RAMP_RATE / 2
+
+
+def test_the_fine_ramp_holds_the_small_forces_of_steady_following():
+    """The paper's levels can hold only multiples of 0.1, so a student of the ACC (steady
+    forces of 0.01-0.06) pulses; the fine ramp reaches and holds 0.02 and -0.05."""
+    fine, coarse = FineRamp(), ForceRamp()
+    assert fine.levels[EMERGENCY_LEVEL] == -1.0 and fine.levels[-1] == 1.0 and len(fine.levels) == len(FORCES)
+    assert list(fine.levels) == sorted(fine.levels)
+    for u in (0.02, -0.05):
+        for t in (fine, coarse):
+            t.reset()
+            for _ in range(5):
+                t.force(t.imitate(u))
+        assert fine.u == pytest.approx(u)  # held exactly, step after step
+        assert coarse.u != pytest.approx(u)  # the paper's levels cannot hold it
+    fine.reset()
+    assert fine.force(EMERGENCY_LEVEL) == -1.0  # the full brake still acts at once
 
 
 def test_config_checks_the_teacher():
