@@ -61,12 +61,13 @@ class AccController:
     name = "acc"
 
     fixed_gap: float | None = None  # [m] a constant d_ref instead of the time gap (the paper's 55 m target)
+    max_gap: float = float("inf")  # [m] a cap on the time-gap d_ref (the eco teacher's 55 m)
 
     def reference_gap(self, v_host: float) -> float:
-        """d_ref [m] at host speed ``v_host`` [m/s] (eq. 2, or ``fixed_gap``)."""
+        """d_ref [m] at host speed ``v_host`` [m/s] (eq. 2, capped at ``max_gap``; or ``fixed_gap``)."""
         if self.fixed_gap is not None:
             return self.fixed_gap
-        return max(v_host * self.t_gap, self.d_safe)
+        return min(max(v_host * self.t_gap, self.d_safe), self.max_gap)
 
     def reset(self) -> None:
         """Nothing to forget between episodes."""

@@ -137,7 +137,8 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     # at the 55 m target and the lead's speed, neither teacher asks for any force
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55"}
+    assert make_teacher("eco")(obs) == 0.0
+    assert set(TEACHERS) == {"none", "acc", "acc-55", "eco"}
 
 
 def test_the_full_brake_is_a_label_only_where_the_teacher_brakes_beyond_iso_comfort():
@@ -154,3 +155,15 @@ def test_the_full_brake_is_a_label_only_where_the_teacher_brakes_beyond_iso_comf
     assert Config().teacher_brake == 3.5
     with pytest.raises(ConfigError, match=">= 0"):
         Config(teacher_brake=-1.0)
+
+
+def test_the_eco_teacher_aims_at_the_eco_rewards_desired_gap():
+    from agent_client.rewards import eco_desired_gap
+    from agent_client.rl.learner import make_teacher
+
+    eco, acc = make_teacher("eco"), make_teacher("acc")
+    for v in np.linspace(0.0, 40.0, 81):
+        assert eco.reference_gap(float(v)) == pytest.approx(eco_desired_gap(float(v)))
+    # gentler than the ACC where the gap is short of its target: a smaller brake, the same sign
+    obs = {"gap": 30.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert acc(obs) < eco(obs) < 0.0
