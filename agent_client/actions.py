@@ -95,7 +95,7 @@ class ForceLevels:
 
     def imitate(self, u: float, hard_brake: float = 0.0) -> int:
         """The level nearest a teacher's force ``u``."""
-        return _nearest(FORCES, FORCES, u)
+        return _nearest(FORCE_LEVELS, FORCE_LEVELS, u)
 
     def observe(self, accel: float) -> None:
         pass
