@@ -6,6 +6,7 @@ Metric names are grouped as CleanRL's: ``charts/``, ``losses/``, ``eval/``.
 from __future__ import annotations
 
 import csv
+import io
 import sys
 import time
 from pathlib import Path
@@ -13,26 +14,32 @@ from typing import Any
 
 __all__ = ["ScalarLog", "Progress"]
 
+FLUSH_EVERY_S = 10.0  # [s] scalars.csv reaches the disk at least this often while rows come
+
 
 def _rows_up_to(path: Path, step: int) -> list[list[str]]:
-    """The rows of ``scalars.csv`` at or before ``step``.
+    """The rows of ``scalars.csv`` at or before ``step``. A torn last line (a kill while the
+    file was being written) is dropped: it was never a whole row.
 
     Raises:
         InputFileError: a row that is not ``step,name,value,wall_s`` (one line naming it).
     """
     from agent_client.errors import InputFileError
 
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}); move the file aside to resume") from None
     kept = []
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            for line, row in enumerate(csv.reader(f), start=1):
-                if line == 1 or not row:
-                    continue
-                if len(row) != 4 or not row[0].isdigit():
-                    raise InputFileError(f"{path}:{line}: not a step,name,value,wall_s row; move the file aside to resume")
-                if int(row[0]) <= step:
-                    kept.append(row)
-    except (UnicodeDecodeError, csv.Error) as exc:
+        for line, row in enumerate(csv.reader(io.StringIO(text[: text.rfind("\n") + 1], newline="")), start=1):
+            if line == 1 or not row:
+                continue
+            if len(row) != 4 or not row[0].isdigit():
+                raise InputFileError(f"{path}:{line}: not a step,name,value,wall_s row; move the file aside to resume")
+            if int(row[0]) <= step:
+                kept.append(row)
+    except csv.Error as exc:
         raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}); move the file aside to resume") from None
     return kept
 
@@ -51,7 +58,7 @@ class ScalarLog:
             self._file = open(path, "w", newline="")
             self._file.write("step,name,value,wall_s\n")
         self._csv = csv.writer(self._file)
-        self._t0 = time.time()
+        self._t0 = self._flushed = time.time()
         self._tb = None
         try:
             from torch.utils.tensorboard import SummaryWriter
@@ -61,7 +68,10 @@ class ScalarLog:
             pass
 
     def add(self, name: str, value: float, step: int) -> None:
-        self._csv.writerow([step, name, f"{value:.6g}", f"{time.time() - self._t0:.1f}"])
+        now = time.time()
+        self._csv.writerow([step, name, f"{value:.6g}", f"{now - self._t0:.1f}"])
+        if now - self._flushed > FLUSH_EVERY_S:  # so that a user tailing the file sees it move
+            self.flush()
         if self._tb is not None:
             self._tb.add_scalar(name, value, step)
 
@@ -76,6 +86,7 @@ class ScalarLog:
             self._tb.add_images(name, frames[:, None], step, dataformats="NCHW")
 
     def flush(self) -> None:
+        self._flushed = time.time()
         self._file.flush()
         if self._tb is not None:
             self._tb.flush()

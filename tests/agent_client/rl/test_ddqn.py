@@ -406,3 +406,20 @@ def test_a_garbage_scalars_csv_fails_a_resume_in_one_line(tmp_path):
     with pytest.raises(InputFileError, match=r"scalars.csv:3: not a step,name,value,wall_s row") as info:
         ScalarLog(tmp_path, resume_step=10)
     assert "\n" not in str(info.value)
+
+
+def test_a_row_torn_by_a_kill_is_dropped_on_resume_and_rows_reach_the_disk_while_training(tmp_path, monkeypatch):
+    """A kill -9 while the writer's buffer reaches the disk can leave half a row at the end;
+    a resume drops it (it was never whole) instead of refusing the run."""
+    from agent_client.rl import scalars
+    from agent_client.rl.scalars import ScalarLog
+
+    (tmp_path / "scalars.csv").write_text("step,name,value,wall_s\n5,charts/x,1,0.1\n12,charts/x,2,0.2\n13,char")
+    log = ScalarLog(tmp_path, resume_step=12)
+    log.close()
+    assert (tmp_path / "scalars.csv").read_text() == "step,name,value,wall_s\n5,charts/x,1,0.1\n12,charts/x,2,0.2\n"
+    monkeypatch.setattr(scalars, "FLUSH_EVERY_S", 0.0)  # every row: a user tailing the file sees it
+    log = ScalarLog(tmp_path)
+    log.add("charts/x", 3.0, 14)
+    assert "14,charts/x,3" in (tmp_path / "scalars.csv").read_text()
+    log.close()
