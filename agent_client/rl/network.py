@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn as nn
+import torch.nn.functional as F
 
 from agent_client.preprocess import FRAME_H, FRAME_W
 from protocol.constants import FORCES, N_ACTIONS
@@ -52,7 +53,10 @@ class QNetwork(nn.Module):
         )
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1]
+        self._convs: tuple[nn.Conv2d, ...] = tuple(m for m in self.conv if isinstance(m, nn.Conv2d))
         self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack * (1 + n_controls), 256), nn.ReLU(), nn.Linear(256, n_actions))
+        # plain tuples, not attributes, so that the state dict keeps one name per tensor
+        self._linears: tuple[nn.Linear, ...] = tuple(m for m in self.fc if isinstance(m, nn.Linear))
 
     @classmethod
     def of(cls, cfg: Any) -> QNetwork:
@@ -74,14 +78,23 @@ class QNetwork(nn.Module):
         Returns:
             ``[B, A]`` Q-values, one per action.
         """
-        x = self.conv(frames.float() / 255.0)  # [B, 2560]
+        # The layers are called functionally, with in-place ReLUs: the same kernels and so the
+        # same numbers as calling the modules, without their per-call overhead (a third of
+        # a batch-1 decision).
+        x = frames.float() / 255.0
+        for conv in self._convs:
+            x = torch.relu_(F.conv2d(x, conv.weight, conv.bias, conv.stride))
+        x = x.flatten(1)  # [B, 2560]
         v = speeds.float() / self.speed_scale  # [B, S]
         if not self.n_controls:
-            return self.fc(torch.cat([x, v], dim=1))  # [B, A]
-        if controls is None:
+            z = torch.cat([x, v], dim=1)
+        elif controls is None:
             raise ValueError("this network observes its controls (force, set speed); none were given")
-        c = (controls.float() / self._control_scale.to(controls.device)).flatten(1)  # [B, S * C]
-        return self.fc(torch.cat([x, v, c], dim=1))  # [B, A]
+        else:
+            c = (controls.float() / self._control_scale.to(controls.device)).flatten(1)  # [B, S * C]
+            z = torch.cat([x, v, c], dim=1)
+        hidden, out = self._linears
+        return F.linear(torch.relu_(F.linear(z, hidden.weight, hidden.bias)), out.weight, out.bias)  # [B, A]
 
 
 def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:

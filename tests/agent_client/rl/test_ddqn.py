@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 
 FRAME_BYTES = FRAME_H * FRAME_W  # one preprocessed frame, uint8
+MODELS_DIR = Path(__file__).parents[3] / "models"
 
 
 def _fill(memory: ReplayMemory, rng: np.random.Generator, lengths: list[int], ends: list[str]):
@@ -173,6 +175,35 @@ def test_network_shapes_and_size():
     assert n_params * 4 < 5e6  # float32 weights under 5 MB
     assert len(FORCES) == 21 and FORCES[0] == -1.0 and FORCES[-1] == 1.0
 
+
+
+def _forward_through_the_modules(q: QNetwork, frames, speeds, controls=None):
+    """The forward pass as the layer modules compute it, one module call each."""
+    parts = [q.conv(frames.float() / 255.0), speeds.float() / q.speed_scale]
+    if q.n_controls:
+        parts.append((controls.float() / q._control_scale).flatten(1))
+    return q.fc(torch.cat(parts, dim=1))
+
+
+@pytest.mark.parametrize("model", sorted(p.name for p in MODELS_DIR.glob("*.pt")))
+def test_the_fast_forward_computes_what_the_layer_modules_compute(model):
+    # The forward calls the layers functionally (a third of a decision's time); the
+    # shipped models' results, and the reproduction of their training, rest on it giving
+    # the module calls' numbers to the last bit, for a decision and for an update.
+    q, _ = load_policy(MODELS_DIR / model)
+    rng = np.random.default_rng(7)
+    for batch in (1, 32):
+        frames = torch.from_numpy(rng.integers(0, 256, (batch, 8, FRAME_H, FRAME_W), dtype=np.uint8))
+        speeds = torch.from_numpy(rng.uniform(0, 40, (batch, 8)).astype(np.float32))
+        controls = torch.from_numpy(rng.uniform(-1, 30, (batch, 8, q.n_controls)).astype(np.float32)) if q.n_controls else None
+        with torch.inference_mode():
+            assert torch.equal(q(frames, speeds, controls), _forward_through_the_modules(q, frames, speeds, controls))
+        grads = []
+        for forward in (q.forward, lambda *a: _forward_through_the_modules(q, *a)):
+            q.zero_grad()
+            forward(frames, speeds, controls).square().sum().backward()
+            grads.append([p.grad.clone() for p in q.parameters()])
+        assert all(torch.equal(a, b) for a, b in zip(*grads, strict=True))
 
 # -- the network never sees privileged state ----------------------------------------
 
@@ -352,9 +383,7 @@ def test_flipped_bytes_in_a_checkpoint_fail_in_one_line_naming_the_file(tmp_path
 
 
 def test_the_shipped_models_load_and_carry_a_digest():
-    from pathlib import Path
-
-    for path in sorted((Path(__file__).parents[3] / "models").glob("*.pt")):
+    for path in sorted(MODELS_DIR.glob("*.pt")):
         q, cfg = load_policy(path)
         ckpt = torch.load(path, weights_only=True)
         assert ckpt["version"] == CHECKPOINT_VERSION and ckpt["sha256"] == digest(ckpt), path
