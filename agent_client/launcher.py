@@ -3,24 +3,46 @@
 The server binds port 0, so the OS picks a free port and there is no race between
 choosing a port and binding it; the launcher reads the bound address from the
 server's first line of output. If the process fails to start, the launch is retried.
+
+A server whose log shares our stderr gets ``--log-level`` from ``VACC_SERVER_LOG_LEVEL``
+(``vacc -v`` / ``vacc --log-level`` set it), else ``warning``: quiet on a terminal.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import select
+import shlex
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 
 from agent_client.errors import ServerLaunchError
+from protocol.logs import LOG_LEVELS
 
-__all__ = ["local_server", "start_server", "reap", "READY_PREFIX", "START_TIMEOUT"]
+__all__ = ["local_server", "start_server", "reap", "READY_PREFIX", "START_TIMEOUT", "SERVER_LOG_LEVEL_ENV", "server_log_level"]
 
 READY_PREFIX = "vacc-server listening on "
 START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
+SERVER_LOG_LEVEL_ENV = "VACC_SERVER_LOG_LEVEL"  # inherited by actor processes, so their servers follow it too
+SERVER_LOG_LEVEL = "warning"  # the default: a spawned server's counters only when asked
+
+log = logging.getLogger("vacc.client")
+
+
+def server_log_level() -> str:
+    """The ``--log-level`` of spawned servers: ``$VACC_SERVER_LOG_LEVEL``, else ``warning``.
+
+    Raises:
+        ServerLaunchError: the variable holds no level of :data:`~protocol.logs.LOG_LEVELS`.
+    """
+    level = os.environ.get(SERVER_LOG_LEVEL_ENV, SERVER_LOG_LEVEL).strip().lower()
+    if level not in LOG_LEVELS:
+        raise ServerLaunchError(f"{SERVER_LOG_LEVEL_ENV}={os.environ[SERVER_LOG_LEVEL_ENV]!r}: not a log level ({', '.join(LOG_LEVELS)})")
+    return level
 
 
 def start_server(args: list[str], timeout: float, stderr: int | None = None) -> tuple[subprocess.Popen[str], tuple[str, int]]:
@@ -29,14 +51,18 @@ def start_server(args: list[str], timeout: float, stderr: int | None = None) -> 
     The caller owns the process and must :func:`reap` it.
 
     Raises:
-        ServerLaunchError: if it does not report its address within ``timeout`` [s].
+        ServerLaunchError: if it does not report its address within ``timeout`` [s],
+            or ``VACC_SERVER_LOG_LEVEL`` is not a log level.
     """
     # --parent-pid: the server exits by itself if we die without reaping it.
-    if stderr is None and "--log-level" not in args:  # a terminal's: quiet unless asked (VACC_SERVER_LOG_LEVEL)
-        args = [*args, "--log-level", os.environ.get("VACC_SERVER_LOG_LEVEL", "warning")]
+    if stderr is None and "--log-level" not in args:  # a terminal's: quiet unless asked
+        args = [*args, "--log-level", server_log_level()]
     cmd = [sys.executable, "-m", "sim_server", "--port", "0", "--parent-pid", str(os.getpid()), *args]
+    log.debug("starting a simulator server: %s", shlex.join(cmd))
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env)
+    # A session of its own: a terminal's Ctrl-C goes to the whole foreground process group,
+    # and the server must outlive it until we have finished the step in flight and reap it.
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True, env=env, start_new_session=True)
     assert proc.stdout is not None
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -45,6 +71,7 @@ def start_server(args: list[str], timeout: float, stderr: int | None = None) -> 
             line = proc.stdout.readline()
             if line.startswith(READY_PREFIX):
                 host, _, port = line[len(READY_PREFIX) :].strip().rpartition(":")
+                log.info("simulator server pid %d listening on %s:%s", proc.pid, host, port)
                 return proc, (host, int(port))
             if not line:  # EOF: the process died
                 break
@@ -65,6 +92,7 @@ def reap(proc: subprocess.Popen[str]) -> None:
             proc.wait()
     if proc.stdout is not None:
         proc.stdout.close()
+    log.debug("simulator server pid %d stopped (exit code %s)", proc.pid, proc.returncode)
 
 
 @contextlib.contextmanager
@@ -87,13 +115,17 @@ def local_server(
     Raises:
         ServerLaunchError: if it would not start after ``retries`` more tries.
     """
+    if stderr is None:
+        server_log_level()  # a bad VACC_SERVER_LOG_LEVEL fails here, not once per try
     last: ServerLaunchError | None = None
-    for _ in range(retries + 1):
+    for attempt in range(retries + 1):
         try:
             proc, addr = start_server([*args, *(["--key-file", os.fspath(key_file)] if key_file else [])], timeout, stderr)
             break
         except ServerLaunchError as exc:
             last = exc
+            if attempt < retries:
+                log.warning("%s; retrying", exc)
     else:
         assert last is not None
         raise last

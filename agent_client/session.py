@@ -18,6 +18,7 @@ else; with a shared ``key`` every datagram both ways is sealed and checked
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import threading
@@ -36,6 +37,8 @@ from protocol.fragment import DEFAULT_DATAGRAM, HELLO_BYTES
 from protocol.transport import Endpoint, is_loopback
 
 __all__ = ["Session", "RETRY_INITIAL", "RETRY_FIRST_RESET", "RETRY_MAX", "GIVE_UP"]
+
+log = logging.getLogger("vacc.client")
 
 RETRY_INITIAL = 0.02  # [s] first re-send timeout before any round trip is measured
 # [s] the same for resets, which keep their own estimate: a reset builds the world and
@@ -370,6 +373,7 @@ class Session:
                     f"last frame {self.frame}) within {self.give_up:g} s{hint}"
                 )
             if now >= resend_at:
+                log.debug("no reply from %s to %s within %.3f s: re-sent (frame %d)", self._where(), what, wait, self.frame)
                 endpoint.send_datagrams(datagrams, server)
                 self._last_send = now
                 self.resends += 1

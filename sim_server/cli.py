@@ -12,6 +12,7 @@ from protocol.auth import load_key
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
+from protocol.logs import LOG_LEVELS
 from protocol.transport import is_loopback
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
@@ -26,7 +27,6 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
         raise click.BadParameter(str(exc)) from None
 
 
-LOG_LEVELS = ("debug", "info", "warning", "error")
 log = logging.getLogger("vacc.server")
 
 
@@ -43,7 +43,7 @@ log = logging.getLogger("vacc.server")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key: every datagram both ways carries a MAC; clients need the same file.")
 @click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
 @click.option("--parent-pid", default=None, type=int, help="Exit when this process dies (set by launchers).")
-@click.option("--log-level", default="info", show_default=True, type=click.Choice(LOG_LEVELS), help="Least severe log messages shown on stderr (the stats line at exit is info; spawned servers default to warning).")
+@click.option("--log-level", default="info", show_default=True, type=click.Choice(LOG_LEVELS), help="Least severe log messages shown on stderr (the stats line at exit is info; spawned servers default to warning, see `vacc --log-level`).")
 def serve(
     host: str,
     port: int,
@@ -64,7 +64,9 @@ def serve(
     Prints 'vacc-server listening on HOST:PORT' once bound, then serves until
     interrupted. Counters of served and rejected datagrams are printed at exit.
     """
-    logging.basicConfig(stream=sys.stderr, level=log_level.upper(), format="%(message)s")
+    logging.basicConfig(stream=sys.stderr, level=log_level.upper(), format="%(message)s")  # a no-op under `vacc -v`: it set logging up
+    if click.get_current_context().get_parameter_source("log_level") is click.ParameterSource.COMMANDLINE:
+        log.setLevel(log_level.upper())  # this command's own option wins over the group's
     key = None
     if key_file is not None:
         try:

@@ -8,8 +8,13 @@ Each side owns its commands; this module only names where they live, so that
 from __future__ import annotations
 
 import importlib
+import logging
+import os
+import sys
 
 import click
+
+from protocol.logs import LOG_LEVELS
 
 COMMANDS = {
     "serve": "sim_server.cli:serve",
@@ -39,7 +44,25 @@ class LazyGroup(click.Group):
         return command
 
 
+VERBOSITY = ("warning", "info", "debug")  # the level of no -v, -v, -vv
+
+
+def configure_logging(level: str | None) -> None:
+    """Show our log messages (the ``vacc.*`` loggers) from ``level`` up on stderr, and spawn
+    servers at ``level``. None leaves Python's default: warnings and errors only."""
+    if level is None:
+        return
+    from agent_client.launcher import SERVER_LOG_LEVEL_ENV
+
+    os.environ[SERVER_LOG_LEVEL_ENV] = level  # the launcher reads it; actor processes and a local Ray inherit it
+    logging.basicConfig(stream=sys.stderr, format="%(name)s: %(message)s")
+    logging.getLogger("vacc").setLevel(level.upper())
+
+
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="Log more on stderr, here and in the simulator servers spawned: -v info (e.g. their counters at exit), -vv debug.")
+@click.option("--log-level", type=click.Choice(LOG_LEVELS), default=None, help="The least severe log messages shown, here and in the simulator servers spawned (overrides -v and $VACC_SERVER_LOG_LEVEL).  [default: warning]")
 @click.version_option(package_name="vacc")
-def main() -> None:
+def main(verbose: int, log_level: str | None) -> None:
     """vacc: vision-based adaptive cruise control over a UDP lockstep co-simulation."""
+    configure_logging(log_level or (VERBOSITY[min(verbose, len(VERBOSITY) - 1)] if verbose else None))

@@ -18,7 +18,7 @@ A checkpoint is a ``torch.save`` dict::
 Every write is atomic and durable (a temporary file, fsynced, then ``os.replace``, then
 the folder fsynced). A failed write (a full
 disk) removes its temporary file and raises :class:`CheckpointWriteError`, one line;
-the previous checkpoint is untouched.
+the previous checkpoint is untouched. An interrupted one (a second Ctrl-C) removes it too.
 """
 
 from __future__ import annotations
@@ -98,6 +98,9 @@ def atomic_save(obj: dict[str, Any], path: Path) -> None:
 def write_atomically(path: Path, write: Any) -> None:
     """Call ``write(tmp)``, then move ``tmp`` over ``path``; on failure remove ``tmp``.
 
+    An interruption (a second Ctrl-C's SystemExit, a KeyboardInterrupt) also removes
+    ``tmp`` and then propagates as it came.
+
     Raises:
         CheckpointWriteError: one line naming the file and the cause.
     """
@@ -112,6 +115,9 @@ def write_atomically(path: Path, write: Any) -> None:
         full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc)
         cause = "the disk is full" if full else f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ''}"
         raise CheckpointWriteError(f"{path}: could not be written ({cause}); the previous file is kept") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _fsync(path: Path) -> None:

@@ -13,6 +13,7 @@ import dataclasses
 import inspect
 import json
 import re
+import shlex
 import signal
 from collections.abc import Callable
 from functools import lru_cache
@@ -123,12 +124,35 @@ def _terminate(signum: int, frame: object) -> None:
 
 def _interrupt(signum: int, frame: object) -> None:
     """First Ctrl-C: stop at the next step with a checkpoint. Second: abort."""
-    from agent_client.rl.train import STOP
+    from agent_client.rl.learner import STOP
 
     if STOP.is_set():
         raise SystemExit(128 + signum)
     STOP.set()
     click.echo("\nvacc train: stopping after this step with a checkpoint (Ctrl-C again to abort)", err=True)
+
+
+RESUME_KEEPS = ("use_ray", "ray_address", "actor_cpus", "max_restarts")  # options not in config.json
+
+# The files a training run writes in its folder, and what --overwrite removes (with their
+# leftover .tmp files); nothing else, and nothing in subfolders.
+RUN_FILES = ("config.json", "summary.json", "scalars.csv", "latest.pt", "best.pt", "replay.npz", "replay-*.npz", "events.out.tfevents.*")
+
+
+def run_files(run: Path) -> list[Path]:
+    """The files of a previous run in ``run`` (:data:`RUN_FILES`)."""
+    found = {p for pattern in RUN_FILES for p in [*run.glob(pattern), *run.glob(pattern + ".tmp")] if p.is_file()}
+    return sorted(found)
+
+
+def _resume_command(ctx: click.Context, run: Path) -> str:
+    """The command that resumes ``run``: its config.json, and the options above that were given."""
+    words = ["vacc", "train", "--config", str(run / "config.json"), "--out", str(run), "--resume"]
+    for p in ctx.command.params:
+        if p.name in RESUME_KEEPS and ctx.get_parameter_source(p.name) is click.ParameterSource.COMMANDLINE:
+            value = ctx.params[p.name]
+            words += [p.opts[0]] if isinstance(value, bool) else [p.opts[0], str(value)]
+    return shlex.join(words)
 
 
 def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
@@ -152,7 +176,7 @@ def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) 
 @click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="Start from a run's config.json: its settings are the defaults, options given override them.")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
 @click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
-@click.option("--overwrite", is_flag=True, help="Start afresh in an --out that already holds a run (its files are replaced).")
+@click.option("--overwrite", is_flag=True, help="Start afresh in an --out that already holds a run: first remove the files a run writes there (config, scalars, TensorBoard events, checkpoints, replay), nothing else.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @click.option("--ray", "use_ray", is_flag=True, help="Run the servers and their actors as Ray actors (pip install 'vacc[ray]').")
 @click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT of a running cluster (default: a local Ray instance).")
@@ -177,20 +201,34 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         raise click.UsageError("--ray-address needs --ray")
     distributed = use_ray or cfg.servers > 1
     run = Path(out)
+    if resume and overwrite:
+        raise click.UsageError("--resume continues the run in --out, --overwrite removes it: give one of them")
     if resume and not (run / "latest.pt").exists():
         raise click.UsageError(f"--resume: {run / 'latest.pt'} does not exist")
     if not resume and not overwrite and (run / "config.json").exists():
         raise click.UsageError(f"--out {run} already holds a run: add --resume to continue it, or --overwrite to start afresh")
-    # A plain `kill` or Ctrl-C reaps the spawned servers and actors (the finally blocks
-    # run); both leave through SystemExit, one shutdown path.
+    old_files = run_files(run) if overwrite else []
+    if cfg.init_from is not None and Path(cfg.init_from).resolve() in {p.resolve() for p in old_files}:
+        raise click.UsageError(f"--init-from {cfg.init_from} is a file of the run in --out {run}, which --overwrite removes: copy it elsewhere first")
+    # A plain `kill` or a second Ctrl-C reaps the spawned servers and actors (the finally
+    # blocks run); both leave through SystemExit, one shutdown path.
     signal.signal(signal.SIGTERM, _terminate)
-    signal.signal(signal.SIGINT, _interrupt if not distributed else _terminate)
+    signal.signal(signal.SIGINT, _interrupt)
     try:
-        if distributed:
-            from agent_client.rl.distributed import import_ray, train_distributed
+        if use_ray:
+            from agent_client.rl.distributed import import_ray
 
-            if use_ray:
-                import_ray()  # before any work: say how to install it
+            import_ray()  # before any work: say how to install it
+        for path in old_files:  # else TensorBoard mixes both runs' events, and an old best.pt passes for ours
+            try:
+                path.unlink(missing_ok=True)
+            except OSError as exc:
+                raise click.ClickException(f"--overwrite: cannot remove {path} ({exc.strerror or exc})") from None
+        if old_files:
+            click.echo(f"vacc train: --overwrite removed {len(old_files)} files of the previous run in {run}", err=True)
+        if distributed:
+            from agent_client.rl.distributed import train_distributed
+
             summary = train_distributed(cfg, out, resume=resume, progress=not quiet, use_ray=use_ray,
                                         ray_address=ray_address, actor_cpus=actor_cpus, max_restarts=max_restarts)  # fmt: skip
         else:
@@ -201,7 +239,7 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         raise click.ClickException(str(exc)) from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
     if summary.get("stopped"):
-        click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: vacc train --config {run / 'config.json'} --out {run} --resume")
+        click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
     if distributed:
         click.echo(
             f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "

@@ -70,10 +70,13 @@ Decisions:
   optimizer, the K replay streams, the step and update counts and the per-actor
   episode counters. It is approximate: the actors start new episodes (the episodes
   open at the checkpoint stay in replay, unfinished), and the arrival order of
-  batches differs from an uninterrupted run.
+  batches differs from an uninterrupted run. So a checkpoint may be taken between
+  any two batches, and the first Ctrl-C (:data:`~agent_client.rl.learner.STOP`)
+  takes one before the next batch is stored.
 * **Processes.** Every actor owns its server (``--parent-pid``: it exits when its
-  actor dies, even by ``kill -9``). Local actors run in their own process group (a
-  terminal's Ctrl-C reaches the learner only, which then stops them in order), watch
+  actor dies, even by ``kill -9``). Local actors start with SIGINT ignored and run in
+  their own process group (a terminal's Ctrl-C reaches the learner only, which saves
+  and then stops them in order), watch
   for the learner's death, and are stopped at exit with a shared flag, then SIGTERM,
   then SIGKILL. They share no lock with the learner (an actor killed holding one
   would block the learner forever). Ray actors are asked to close, then killed; a Ray instance that
@@ -108,7 +111,7 @@ from torch.nn.utils import vector_to_parameters
 
 from agent_client.errors import ClientError
 from agent_client.rl.config import Config
-from agent_client.rl.learner import SESSION_TIMEOUT, Learner
+from agent_client.rl.learner import SESSION_TIMEOUT, STOP, Learner
 from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action, linear_schedule
 from agent_client.rl.replay import StreamReplay
 from agent_client.rl.scalars import Progress
@@ -425,7 +428,15 @@ class _LocalPool:
         reader, writer = self.ctx.Pipe(duplex=False)
         args = (self.cfg, i, self.server_args, episode_base, writer, self.shared, os.getpid())
         proc = self.ctx.Process(target=_local_actor_main, args=args, name=f"vacc-actor-{i}", daemon=True)
-        proc.start()
+        # An ignored signal stays ignored across exec, and Python keeps it so: a terminal's
+        # Ctrl-C during the seconds the actor imports (before its setpgrp) does not kill it.
+        main = threading.current_thread() is threading.main_thread()  # signal.signal works only there
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            proc.start()
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
         writer.close()  # ours: so that the reader sees EOF when the actor dies, even mid-message
         self.actors[i] = _Local(proc, reader)
 
@@ -780,7 +791,7 @@ def train_distributed(
     Returns:
         Summary: steps, updates, episodes, best score, last evaluation, wall time [s],
         env_steps_per_s (from the first batch on), transitions/restarts per actor,
-        the actors' process ids.
+        the actors' process ids, whether :data:`STOP` ended it.
 
     Raises:
         InputFileError: ``resume`` with a missing or bad checkpoint or replay file.
@@ -820,6 +831,7 @@ def train_distributed(
         "restarts_by_actor": [r - r0 for r, r0 in zip(loop.restarts_by_actor, loop.restarts_at_start, strict=True)],
         "actor_pids": sorted(loop.pids),
         "replay_bytes_per_transition": replay.nbytes / replay.capacity,
+        "stopped": STOP.is_set(),
     }
 
 
@@ -836,19 +848,20 @@ def _run_streams(loop: _StreamsLoop, pool: _LocalPool | _RayPool) -> float:
         last_data = time.monotonic()
         while True:
             loop.learn(pool)
+            stopping = STOP.is_set()  # the first Ctrl-C: keep what was learned, resumable
             finished = loop.step >= cfg.total_steps
             if loop.step >= next_log or finished:
                 loop.log_actors(pool)
                 next_log = (loop.step // cfg.log_every + 1) * cfg.log_every
-            if cfg.eval_trajectories and (loop.step >= next_eval or (finished and last_eval_step != loop.step)):
+            if cfg.eval_trajectories and not stopping and (loop.step >= next_eval or (finished and last_eval_step != loop.step)):
                 learner.evaluate(loop.step)
                 last_eval_step = loop.step
                 while next_eval <= loop.step:
                     next_eval += cfg.eval_every
-            if loop.step >= next_checkpoint or (finished and last_checkpoint_step != loop.step):
+            if loop.step >= next_checkpoint or ((finished or stopping) and last_checkpoint_step != loop.step):
                 learner.checkpoint(loop.state(), loop.replay)
                 last_checkpoint_step, next_checkpoint = loop.step, loop.step + cfg.checkpoint_every
-            if finished:
+            if finished or stopping:
                 break
             pool.set_epsilon(loop.epsilon())
             got = pool.poll(0.5, loop.episodes_by_actor, loop.note)

@@ -14,6 +14,7 @@ import json
 import math
 import random
 import sys
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -45,11 +46,14 @@ from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from protocol.constants import DESIRED_GAP
 
-__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT"]
+__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP"]
 
 SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
 EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
 MALLOC_KEEP = 1 << 30  # [B] freed memory glibc keeps for reuse instead of returning it to the OS
+
+# Set (by the CLI's first Ctrl-C) to end either loop at its next step with a checkpoint.
+STOP = threading.Event()
 
 
 def keep_freed_memory() -> None:
@@ -146,7 +150,7 @@ class Learner:
             everything the loop draws).
         acting_rng: the loop's generator for episode seeds, ε and random actions.
         saved: the loop state of the resumed checkpoint ({} for a new run).
-        replay_names: the replay files that go with it.
+        replay_names: the replay files that go with it (then with the last checkpoint written).
 
     Raises:
         InputFileError: a bad checkpoint to resume or to start from.
@@ -393,17 +397,31 @@ class Learner:
         """Write ``latest.pt`` with the loop's ``state`` and the replay that goes with it.
 
         The replay first, under new names; then ``latest.pt``, which names them; only
-        then the old replay files go. A kill -9 anywhere leaves a resumable pair.
+        then the old replay files go. A kill -9 anywhere leaves a resumable pair; a failed
+        or interrupted write (a second Ctrl-C) removes the new replay files it wrote.
 
         Raises:
             CheckpointWriteError: a write failed; the previous checkpoint still resumes.
         """
         self.wait()
         step = int(state["global_step"])
+        names = memory.file_names(step) if isinstance(memory, StreamReplay) else [f"replay-{step}.npz"]
+        try:
+            self._write_checkpoint(state, memory, step, names)
+        except BaseException:  # none of them is named by a latest.pt
+            for name in set(names) - set(self.replay_names):
+                (self.run_dir / name).unlink(missing_ok=True)
+            raise
+        self.replay_names = names
+        for old in [*self.run_dir.glob("replay-*.npz"), self.run_dir / "replay.npz"]:
+            if old.name not in names and old.exists():
+                old.unlink()
+        self.log.flush()
+
+    def _write_checkpoint(self, state: dict[str, Any], memory: ReplayMemory | StreamReplay, step: int, names: list[str]) -> None:
         if isinstance(memory, StreamReplay):
-            names = memory.save(self.run_dir, step)
+            memory.save(self.run_dir, step)
         else:
-            names = [f"replay-{step}.npz"]
             memory.save(self.run_dir / names[0], step)
         rng: dict[str, Any] = {
             "numpy": self.rng.bit_generator.state,
@@ -422,10 +440,6 @@ class Learner:
         if self.parallel:
             payload["acting"] = self.acting.state_dict()
         atomic_save(payload, self.run_dir / "latest.pt")
-        for old in [*self.run_dir.glob("replay-*.npz"), self.run_dir / "replay.npz"]:
-            if old.name not in names and old.exists():
-                old.unlink()
-        self.log.flush()
 
     def close(self) -> None:
         """Stop the worker, close the log and the evaluation server. Safe to call twice."""

@@ -337,9 +337,13 @@ class StreamReplay:
         parts = [(m, m._plan(int(c), rng, n_step, gamma)) for m, c in zip(self.streams, counts, strict=True) if c > 0]
         return _assemble(parts, self.streams[0]._buffer(batch_size))
 
+    def file_names(self, step: int) -> list[str]:
+        """The files :meth:`save` writes at ``step``: ``replay-<step>-<i>.npz``."""
+        return [f"replay-{step}-{i}.npz" for i in range(len(self.streams))]
+
     def save(self, run_dir: Path, step: int) -> list[str]:
         """Write every stream as ``replay-<step>-<i>.npz``; returns the names."""
-        names = [f"replay-{step}-{i}.npz" for i in range(len(self.streams))]
+        names = self.file_names(step)
         for m, name in zip(self.streams, names, strict=True):
             m.save(run_dir / name, step)
         return names

@@ -18,7 +18,6 @@ evaluation so far (< 5 MB).
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -30,15 +29,12 @@ import numpy as np
 
 from agent_client.actions import make_action_type
 from agent_client.rl.config import Config
-from agent_client.rl.learner import Learner
+from agent_client.rl.learner import STOP, Learner
 from agent_client.rl.network import linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
 
 __all__ = ["train", "LoopState", "STOP"]
-
-# Set (by the CLI's first Ctrl-C) to end the run at the next step with a checkpoint.
-STOP = threading.Event()
 
 
 @dataclass
@@ -86,7 +82,8 @@ def train(
         on_eval: called with (step, results) after each evaluation.
 
     Returns:
-        Summary: steps, episodes, best score, last evaluation, wall time [s].
+        Summary: steps, episodes, best score, last evaluation, wall time [s], whether
+        :data:`STOP` ended it.
 
     Raises:
         InputFileError: ``resume`` with a missing or bad checkpoint or replay file.

@@ -240,6 +240,35 @@ def test_spawned_server_exits_when_its_client_is_killed(tmp_path):
             pytest.fail(f"orphaned server still holds port {port}")
 
 
+def test_spawned_server_outlives_a_ctrl_c_to_its_clients_process_group():
+    # A terminal's Ctrl-C goes to every process of the foreground job. The client decides
+    # when its server goes (after it has saved its work): the server must not get it.
+    script = (
+        "import time\n"
+        "from agent_client.launcher import local_server\n"
+        "from agent_client.session import Session\n"
+        "with local_server() as addr, Session(addr, give_up=3) as s:\n"
+        "    s.reset(seed=0)\n"
+        "    print('ready', flush=True)\n"
+        "    try:\n"
+        "        time.sleep(60)\n"
+        "    except KeyboardInterrupt:\n"
+        "        time.sleep(1)  # time for a server that got it to die\n"
+        "        print('frame', s.step(0.0)['frame'], flush=True)\n"
+    )
+    client = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)  # fmt: skip
+    try:
+        assert client.stdout.readline() == "ready\n"
+        os.killpg(client.pid, signal.SIGINT)
+        out, err = client.communicate(timeout=60)
+    finally:
+        if client.poll() is None:
+            os.killpg(client.pid, signal.SIGKILL)
+            client.wait()
+    assert client.returncode == 0 and out == "frame 1\n", err
+
+
 @pytest.mark.parametrize(
     ("trace_t", "trace_v", "words"),
     [

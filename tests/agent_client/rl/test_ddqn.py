@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import inspect
+import os
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +23,7 @@ from agent_client.rl.checkpoint import (
     digest,
     load_policy,
     save_policy,
+    write_atomically,
 )
 from agent_client.rl.config import Config
 from agent_client.rl.learner import double_dqn_target
@@ -404,6 +408,65 @@ def test_a_full_disk_leaves_no_temporary_file_and_keeps_the_last_checkpoint(tmp_
     assert "\n" not in str(info.value)
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["best.pt"]
     load_policy(path)
+
+
+@pytest.fixture
+def after_a_first_ctrl_c():
+    """The CLI's SIGINT handler installed and STOP set, as after a first Ctrl-C."""
+    from agent_client.rl.cli import _interrupt
+    from agent_client.rl.learner import STOP
+
+    previous = signal.signal(signal.SIGINT, _interrupt)
+    STOP.set()
+    try:
+        yield
+    finally:
+        STOP.clear()
+        signal.signal(signal.SIGINT, previous)
+
+
+def _ctrl_c_mid_write(path) -> None:
+    """Half a file, then the second Ctrl-C: the handler raises SystemExit here."""
+    Path(path).write_bytes(b"PK\x03\x04 half a file")
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+
+
+def test_a_second_ctrl_c_during_a_write_leaves_no_temporary_file(tmp_path, after_a_first_ctrl_c):
+    path = tmp_path / "best.pt"
+    save_policy(QNetwork(), Config(), path)
+    before = path.read_bytes()
+    with pytest.raises(SystemExit) as info:
+        write_atomically(path, _ctrl_c_mid_write)
+    assert info.value.code == 130
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["best.pt"]
+
+
+@pytest.mark.parametrize("failure", ["full disk", "second Ctrl-C"])
+def test_a_failed_checkpoint_removes_the_replay_it_wrote_and_the_last_one_resumes(tmp_path, monkeypatch, after_a_first_ctrl_c, failure):
+    from agent_client.rl.learner import Learner
+
+    cfg = Config(buffer_size=100, eval_trajectories=(), schedule="serial")
+    learner = Learner(cfg, tmp_path)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride)
+    rng = np.random.default_rng(0)
+    _fill(memory, rng, [10], ["cut"])
+    learner.checkpoint({"global_step": 10}, memory)
+    _fill(memory, rng, [10], ["cut"])
+
+    def full(obj, f, *args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full if failure == "full disk" else lambda obj, f, *a, **k: _ctrl_c_mid_write(f))
+    with pytest.raises(CheckpointWriteError if failure == "full disk" else SystemExit):
+        learner.checkpoint({"global_step": 20}, memory)
+    monkeypatch.undo()
+    learner.close()
+    assert not list(tmp_path.glob("*.tmp")) and [p.name for p in tmp_path.glob("replay-*")] == ["replay-10.npz"]
+    resumed = Learner(cfg, tmp_path, resume=True)
+    resumed.close()
+    assert resumed.saved["global_step"] == 10 and resumed.replay_names == ["replay-10.npz"]
+    assert ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride).load(tmp_path / "replay-10.npz") == 10
 
 
 def test_config_rejects_bad_values():

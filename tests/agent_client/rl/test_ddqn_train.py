@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import torch
 from click.testing import CliRunner
+from proctree import descendants, servers_of, state, wait_gone
 
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
@@ -193,35 +201,93 @@ def test_checkpoints_without_a_zoom_are_the_papers_pipeline(tmp_path):
 
 
 def test_first_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
-    import signal
-    import subprocess
-    import sys
-    import time
-
+    """A terminal's Ctrl-C goes to the whole foreground process group: the spawned server
+    must outlive it, so that the step in flight ends and the checkpoint is written."""
     out = tmp_path / "run"
     args = [sys.executable, "-m", "vacc", "train", "--reward", "gap", "--steps", "100000", "--learning-starts", "20",
             "--buffer-size", "2000", "--episode-seconds", "3", "--eval-trajectories", "test-1", "--eval-seconds", "0.5",
             "--eval-every", "0", "--checkpoint-every", "100000", "--quiet", "--out", str(out)]  # fmt: skip
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # its own session: a process group of its own, as a job started from a terminal
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while not (out / "config.json").exists():  # the learner is built
+        while not (out / "scalars.csv").exists() or not servers_of([proc.pid]):  # the learner and its server are up
             assert proc.poll() is None and time.monotonic() < deadline, "training did not start"
             time.sleep(0.2)
         time.sleep(5)  # some steps
-        proc.send_signal(signal.SIGINT)
+        tree = descendants(proc.pid)
+        (server,) = servers_of([proc.pid])
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, as a terminal sends it: to every process of the job
+        while state(server) not in ("(Z)", "(gone)") and time.monotonic() < deadline + 60:
+            time.sleep(0.005)
+        # the trainer reaps its server after the checkpoint; one that died of the Ctrl-C went first
+        saved_before_the_server_went = (out / "latest.pt").exists()
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
-            proc.kill()
+            os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+    assert saved_before_the_server_went, "the Ctrl-C reached the spawned server"
     assert proc.returncode == 130, stderr
-    assert "Ctrl-C again to abort" in stderr and "--resume" in stdout
+    assert "Ctrl-C again to abort" in stderr and "Traceback" not in stderr, stderr
     assert (out / "latest.pt").exists() and not list(out.glob("*.tmp"))
+    assert wait_gone(tree) == [], "processes left behind"
     step = torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"]
     assert 0 < step < 100000
     # the printed command resumes it, its settings read back from config.json
-    resumed = subprocess.run([sys.executable, "-m", "vacc", "train", "--config", str(out / "config.json"), "--out", str(out),
-                              "--resume", "--steps", str(step + 30), "--quiet"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    (command,) = [line.split("continue with: ", 1)[1] for line in stdout.splitlines() if "continue with: " in line]
+    assert shlex.split(command)[:2] == ["vacc", "train"] and "--resume" in command
+    resumed = subprocess.run([sys.executable, "-m", "vacc", *shlex.split(command)[1:], "--steps", str(step + 30), "--quiet"],
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     assert torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"] == step + 30
+
+
+TRAIN_TINY = [sys.executable, "-m", "vacc", "train", "--reward", "gap", "--steps", "40", "--learning-starts", "20",
+              "--buffer-size", "500", "--episode-seconds", "3", "--eval-every", "0", "--eval-trajectories", "test-1",
+              "--eval-seconds", "0.5", "--quiet"]  # fmt: skip
+OLD_RUN = ("config.json", "summary.json", "scalars.csv", "latest.pt", "best.pt", "replay-50.npz", "latest.pt.tmp",
+           "events.out.tfevents.1700000000.old-host.1.0")  # fmt: skip
+NOT_THE_RUNS = ("notes.md", "best.pt.bak", "eval/events.out.tfevents.1700000000.old-host.2.0", "eval/latest.pt")
+
+
+def _folder_with_an_old_run(out):
+    """An old run's files (garbage bytes), and the researcher's own files beside them and below."""
+    (out / "eval").mkdir(parents=True)
+    for name in (*OLD_RUN, *NOT_THE_RUNS):
+        (out / name).write_bytes(b"old " + name.encode())
+    (out / "config.json").write_text("{}")
+
+
+def _snapshot(folder):
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else b"", p.stat().st_mtime_ns) for p in folder.rglob("*")}
+
+
+def test_an_out_that_holds_a_run_is_refused_without_resume_or_overwrite(tmp_path):
+    out = tmp_path / "run"
+    _folder_with_an_old_run(out)
+    before = _snapshot(out)
+    for extra in ([], ["--resume", "--overwrite"]):
+        r = subprocess.run([*TRAIN_TINY, "--out", str(out), *extra], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2, r.stderr
+        assert "--resume" in r.stderr and "--overwrite" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert _snapshot(out) == before
+
+
+def test_overwrite_removes_the_old_runs_files_tensorboard_events_included_and_nothing_else(tmp_path):
+    from agent_client.rl.cli import run_files
+
+    out = tmp_path / "run"
+    _folder_with_an_old_run(out)
+    theirs = {name: (out / name).read_bytes() for name in NOT_THE_RUNS}
+    r = subprocess.run([*TRAIN_TINY, "--out", str(out), "--overwrite"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"--overwrite removed {len(OLD_RUN)} files of the previous run" in r.stderr
+    assert {name: (out / name).read_bytes() for name in NOT_THE_RUNS} == theirs
+    assert not (out / "replay-50.npz").exists() and not list(out.glob("*.tmp"))
+    events = [p.name for p in out.glob("events.out.tfevents.*")]
+    assert OLD_RUN[-1] not in events and len(events) == (1 if importlib.util.find_spec("tensorboard") else 0), events
+    assert torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"] == 40
+    load_policy(out / "best.pt")
+    # what this run wrote is what the next --overwrite removes: RUN_FILES names every file
+    assert {p.name for p in run_files(out)} == {p.name for p in out.iterdir() if p.is_file()} - set(NOT_THE_RUNS)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from click.testing import CliRunner
 from proctree import (
     assert_no_servers_left,
     descendants,
+    procs,
     servers_of,
     wait_gone,
     wait_until_both_actors_deliver,
@@ -238,3 +240,70 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     assert wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
     if sig != signal.SIGKILL:
         assert "Traceback" not in stderr, stderr[-2000:]
+
+
+def _start_in_own_group(args, stderr_path):
+    """`vacc ARGS` in a session of its own: a process group, as a job started from a terminal."""
+    with open(stderr_path, "w") as err:
+        return subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.PIPE, stderr=err, text=True, start_new_session=True)
+
+
+def test_first_ctrl_c_of_a_two_server_run_saves_a_checkpoint_that_resumes(tmp_path):
+    """Ctrl-C to the whole process group, as a terminal sends it: the learner checkpoints,
+    prints the command that resumes, and stops its actors and their servers in order."""
+    out = tmp_path / "run"
+    args = [*CLI_ARGS, "--servers", "2", "--steps", "100000", "--checkpoint-every", "100000", "--log-every", "20", "--out", str(out)]
+    proc = _start_in_own_group(args, tmp_path / "stderr.txt")
+    try:
+        wait_until_both_actors_deliver(out)
+        tree = descendants(proc.pid)
+        assert len(servers_of(tree)) == 2, tree
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Ctrl-C again to abort" in stderr and "Traceback" not in stderr and "died" not in stderr, stderr[-2000:]
+    assert wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
+    assert not list(out.glob("*.tmp"))
+    ckpt = torch.load(out / "latest.pt", weights_only=True)
+    step = ckpt["state"]["global_step"]
+    assert ckpt["trainer"] == "streams" and 0 < step < 100000 and sorted(ckpt["replay"]) == [f"replay-{step}-0.npz", f"replay-{step}-1.npz"]
+    # the printed command resumes it: --servers 2 comes back from config.json
+    (command,) = [line.split("continue with: ", 1)[1] for line in stdout.splitlines() if "continue with: " in line]
+    resumed = subprocess.run([sys.executable, "-m", "vacc", *shlex.split(command)[1:], "--steps", str(step + 40), "--quiet"],
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert "2 actors (local)" in resumed.stdout
+    assert torch.load(out / "latest.pt", weights_only=True)["state"]["global_step"] == step + 40
+
+
+def test_ctrl_c_while_the_actors_start_kills_none_of_them(tmp_path):
+    """Before an actor has made its own process group it is still in the terminal's job;
+    it starts with SIGINT ignored, so the Ctrl-C stops the run instead of killing it."""
+    out = tmp_path / "run"
+    proc = _start_in_own_group([*CLI_ARGS, "--servers", "2", "--steps", "100000", "--out", str(out)], tmp_path / "stderr.txt")
+    seen: set[int] = set()  # every process of the run: actors, their servers
+    try:
+        deadline = time.monotonic() + 120
+        while not [p for p in descendants(proc.pid) if "spawn_main" in procs().get(p, (0, ""))[1]]:  # an actor exists
+            assert proc.poll() is None and time.monotonic() < deadline, "no actor started"
+            time.sleep(0.01)
+        os.killpg(proc.pid, signal.SIGINT)
+        while proc.poll() is None and time.monotonic() < deadline + 60:
+            seen |= descendants(proc.pid)
+            time.sleep(0.1)
+        stdout, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "died" not in stderr and "KeyboardInterrupt" not in stderr and "Traceback" not in stderr, stderr[-2000:]
+    assert "--resume" in stdout and (out / "latest.pt").exists()
+    assert wait_gone(seen, timeout=20) == [], seen
+    assert_no_servers_left(seen)

@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import csv
 import os
+import shlex
 import signal
 import subprocess
 import sys
 import time
 
 import pytest
+import torch
 from proctree import (
     assert_no_servers_left,
     descendants,
@@ -58,6 +60,37 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert wait_gone(tree, timeout=20) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
     assert "Traceback" not in stderr and "SIGTERM received" not in stderr, stderr[-2000:]
+
+
+def test_first_ctrl_c_of_a_ray_run_saves_a_checkpoint(tmp_path):
+    """Ctrl-C to the whole process group, as a terminal sends it (also before this module's
+    Ray): the learner checkpoints and prints a resume command that keeps --ray."""
+    out = tmp_path / "run"
+    args = [
+        "train", "--reward", "gap", "--steps", "100000", "--learning-starts", "100", "--batch-size", "8",
+        "--buffer-size", "1000", "--episode-seconds", "3", "--eval-every", "0", "--log-every", "20",
+        "--checkpoint-every", "100000", "--quiet", "--servers", "2", "--ray", "--out", str(out),
+    ]  # fmt: skip
+    with open(tmp_path / "stderr.txt", "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.PIPE, stderr=err, text=True,
+                                start_new_session=True)  # fmt: skip
+    try:
+        wait_until_both_actors_deliver(out)
+        tree = descendants(proc.pid)
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
+    assert proc.returncode == 130, stderr[-2000:]
+    assert "Traceback" not in stderr and "call failed" not in stderr, stderr[-2000:]
+    assert wait_gone(tree, timeout=20) == [], stderr[-2000:]
+    ckpt = torch.load(out / "latest.pt", weights_only=True)
+    assert ckpt["trainer"] == "streams" and ckpt["state"]["global_step"] > 0 and not list(out.glob("*.tmp"))
+    (command,) = [line.split("continue with: ", 1)[1] for line in stdout.splitlines() if "continue with: " in line]
+    assert shlex.split(command)[-2:] == ["--resume", "--ray"], command
 
 
 @pytest.fixture(scope="module")
