@@ -62,6 +62,7 @@ class AccController:
 
     fixed_gap: float | None = None  # [m] a constant d_ref instead of the time gap (the paper's 55 m target)
     max_gap: float = float("inf")  # [m] a cap on the time-gap d_ref (the eco teacher's 55 m)
+    decel_cap: float = float("inf")  # [m/s^2] a cap on the law's braking; the collision-avoidance limit may brake harder
 
     def reference_gap(self, v_host: float) -> float:
         """d_ref [m] at host speed ``v_host`` [m/s] (eq. 2, capped at ``max_gap``; or ``fixed_gap``)."""
@@ -83,7 +84,7 @@ class AccController:
         default 33.5 m/s.
         """
         gap, v, v_lead = obs["gap"], obs["v_host"], obs["v_lead"]
-        a_ref = self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_lead - v)
+        a_ref = max(self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_lead - v), -self.decel_cap)
         a_ref = min(a_ref, self.cruise_accel(v, obs.get("set_speed", DEFAULT_SET_SPEED)))
         closing = v - v_lead  # [m/s]
         d_aim = self.d_safe if v_lead < V_STANDING else self.d_min

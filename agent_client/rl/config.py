@@ -26,7 +26,7 @@ from protocol.scenarios import (
 __all__ = ["Config", "ConfigError", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
 SCHEDULES = ("parallel", "serial")
-TEACHERS = ("none", "acc", "acc-55", "eco")  # who labels the states in teacher (DAgger) runs
+TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "eco", "eco-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -137,9 +137,13 @@ class Config:
     speed, labels every visited state with the action nearest its force; the network,
     from pixels as ever, learns the labels by cross-entropy. "acc-55": the same ACC law
     aiming at the paper's 55 m at every speed instead of its 1.8 s time gap, with gains
-    that hold it (beta 0.3, gamma 1.0). "eco": the ACC law on the eco reward's desired gap,
+    that hold it (beta 0.3, gamma 1.0). "acc-55-gentle": the 55 m law with beta 0.4, gamma
+    2.0 and its braking capped at 3 m/s^2 (the collision-avoidance limit brakes harder):
+    6 % less energy than acc-55 through the ramp on random EV leads. "eco": the ACC law on the eco reward's desired gap,
     clip(2 s x speed, 5 m, 55 m), with gentler gains (beta 0.1, gamma 0.3): 3 % less fuel
-    than the ACC on random ICE leads."""
+    than the ACC on random ICE leads. "eco-margin": the eco teacher stopping 8 m behind a
+    standing car and aiming 6 m behind a slower one (the ACC: 5 m and 3 m), so that a
+    student a few frames late still stops short."""
     teacher_brake: float = 3.5
     """[m/s^2] (teacher, ramp action) the full brake, which acts at once and is released
     only at the ramp's rate, is a label only where the teacher decelerates at least this

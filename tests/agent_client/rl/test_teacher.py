@@ -138,7 +138,34 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert make_teacher("eco")(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55", "eco"}
+    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "eco", "eco-margin"}
+
+
+def test_the_gentle_55_m_teacher_caps_its_braking_but_not_its_collision_avoidance():
+    from agent_client.actions import accel_of_force
+    from agent_client.rl.learner import make_teacher
+
+    gentle, acc55 = make_teacher("acc-55-gentle"), make_teacher("acc-55")
+    assert gentle.reference_gap(10.0) == 55.0
+    # 27.7 m behind a lead at the same speed: acc-55 brakes at 8 m/s^2, the gentle law at its 3
+    opening = {"gap": 27.7, "v_host": 14.0, "v_lead": 14.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert accel_of_force(acc55(opening)) < -5.0
+    assert accel_of_force(gentle(opening)) == pytest.approx(-3.0)
+    # closing fast on a standing car: the collision-avoidance limit brakes beyond the cap
+    closing = {"gap": 25.0, "v_host": 15.0, "v_lead": 0.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert accel_of_force(gentle(closing)) < -4.5
+
+
+def test_the_margin_teacher_follows_as_the_eco_teacher_but_stops_further_back():
+    from agent_client.rl.learner import make_teacher
+
+    eco, margin = make_teacher("eco"), make_teacher("eco-margin")
+    following = {"gap": 48.0, "v_host": 30.0, "v_lead": 29.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert margin(following) == eco(following)  # on the road, the same law
+    # 6 m behind a standing car at 3 m/s: the eco teacher (aiming at 5 m) brakes gently, the margin one (8 m) hard
+    standing = {"gap": 6.0, "v_host": 3.0, "v_lead": 0.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert margin(standing) < eco(standing) < 0.0
+    assert margin.reference_gap(0.0) == 8.0 and eco.reference_gap(0.0) == 5.0
 
 
 def test_the_full_brake_is_a_label_only_where_the_teacher_brakes_beyond_iso_comfort():
