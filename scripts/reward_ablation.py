@@ -1,0 +1,71 @@
+"""Score driven runs under several eco-reward weightings: which controller does each prefer?
+
+    .venv/bin/python scripts/reward_ablation.py runs/eval-ice      # the logs of a `vacc evaluate` run
+    .venv/bin/python scripts/reward_ablation.py runs/eval-ev
+
+The eco reward is linear in its four terms (gap, energy, comfort, closing: rewards.py), so
+each run's mean terms are computed once from its log and every weighting is a weighted sum
+over the weights' total, the reward the trainer would have paid per step. Prints, per
+weighting, the mean reward per step of each method over its logs and the methods in order.
+A reward-design check, not a training run: it says what a policy that maximised each
+weighting would be pushed toward, among behaviours that exist.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from agent_client.rewards import ECO_WEIGHTS, closing_term, comfort_term, eco_desired_gap, energy_term, gap_term
+
+WEIGHTINGS = {
+    "shipped (1, 0.5, 0.25, 0.5)": ECO_WEIGHTS,
+    "gap only": (1.0, 0.0, 0.0, 0.0),
+    "no energy": (1.0, 0.0, 0.25, 0.5),
+    "no comfort": (1.0, 0.5, 0.0, 0.5),
+    "no closing": (1.0, 0.5, 0.25, 0.0),
+    "energy x2": (1.0, 1.0, 0.25, 0.5),
+    "comfort x4": (1.0, 0.5, 1.0, 0.5),
+}
+FOLLOWERS = ("ddqn-gap", "ddqn-force", "ddqn-eco", "acc", "human")
+
+
+def mean_terms(log: Path, scenario: str) -> np.ndarray:
+    """Mean per step of (gap term / 10, -energy, -comfort, -closing) over one run log."""
+    rows = list(csv.DictReader(log.open()))
+    terms = []
+    a_prev = 0.0
+    for r in rows[1:]:  # the reward of a step is paid on the row it produced
+        v, a, gap = float(r["v_host"]), float(r["accel"]), float(r["gap"])
+        terms.append((gap_term(gap, eco_desired_gap(v)) / 10.0, -energy_term(v, a, scenario), -comfort_term(a, a_prev), -closing_term(v, float(r["v_lead"]))))
+        a_prev = a
+    return np.mean(terms, axis=0)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run", type=Path, help="a `vacc evaluate --out` folder (its logs/)")
+    a = p.parse_args()
+    scenario = "ev" if "ev" in a.run.name else "ice"
+    terms = {}
+    for m in FOLLOWERS:
+        logs = sorted((a.run / "logs").glob(f"{m}-*.csv"))
+        if logs:
+            terms[m] = np.mean([mean_terms(f, scenario) for f in logs], axis=0)
+    if not terms:
+        sys.exit(f"{a.run / 'logs'}: no run logs of {', '.join(FOLLOWERS)}")
+    print("mean terms per step (gap/10, -energy, -comfort, -closing):")
+    for m, t in terms.items():
+        print(f"  {m:11} " + " ".join(f"{x:+.4f}" for x in t))
+    for name, w in WEIGHTINGS.items():
+        score = {m: float(np.dot(t, w) / sum(w)) for m, t in terms.items()}
+        order = sorted(score, key=score.get, reverse=True)
+        print(f"{name:28} " + "  ".join(f"{m} {score[m]:+.4f}" for m in order))
+
+
+if __name__ == "__main__":
+    main()
