@@ -20,7 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from agent_client.rewards import ECO_WEIGHTS, closing_term, comfort_term, eco_desired_gap, energy_term, gap_term
+from agent_client.rewards import (
+    ECO_WEIGHTS,
+    closing_term,
+    comfort_term,
+    eco_desired_gap,
+    energy_term,
+    gap_term,
+)
 
 WEIGHTINGS = {
     "shipped (1, 0.5, 0.25, 0.5)": ECO_WEIGHTS,
