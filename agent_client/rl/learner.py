@@ -121,7 +121,7 @@ TEACHER_55_GENTLE = (0.4, 2.0, 3.0)
 # (beta, gamma) of the "eco" teacher: gentler than the ACC's (0.23, 0.07 on a 1.8 s gap) on
 # the eco reward's desired gap; chosen on random ICE seeds 200-213 (docs/training.md)
 TEACHER_ECO_GAINS = (0.1, 0.3)
-# (standstill distance d_safe, closest approach d_min) [m] of the "eco-margin" teacher: 3 m
+# (standstill distance d_safe, closest approach d_min) [m] of the "-margin" teachers: 3 m
 # more than the ACC's, about what the eco student, seeing the danger a few frames late,
 # overran its teacher by (1.27 m behind a stopped car where the teacher stops at 4.6 m)
 TEACHER_MARGIN_GAPS = (8.0, 6.0)
@@ -133,9 +133,10 @@ def make_teacher(name: str) -> AccController | None:
         return None
     if name == "acc-55":  # the gains that hold 55 m on the EV test windows (docs/training.md)
         return AccController(fixed_gap=DESIRED_GAP, beta=TEACHER_55_GAINS[0], gamma=TEACHER_55_GAINS[1])
-    if name == "acc-55-gentle":
+    if name in ("acc-55-gentle", "acc-55-margin"):
         beta, gamma, decel_cap = TEACHER_55_GENTLE
-        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap)
+        d_safe, d_min = TEACHER_MARGIN_GAPS if name == "acc-55-margin" else (AccController.d_safe, AccController.d_min)
+        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap, d_safe=d_safe, d_min=d_min)
     if name == "eco":  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
         return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=TEACHER_ECO_GAINS[0], gamma=TEACHER_ECO_GAINS[1])
     if name == "eco-margin":  # the same law, stopping 3 m further back
