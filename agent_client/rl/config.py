@@ -26,7 +26,7 @@ from protocol.scenarios import (
 __all__ = ["Config", "ConfigError", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
 SCHEDULES = ("parallel", "serial")
-TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-margin", "eco", "eco-margin")  # who labels the states in teacher (DAgger) runs
+TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "eco", "eco-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -139,7 +139,7 @@ class Config:
     aiming at the paper's 55 m at every speed instead of its 1.8 s time gap, with gains
     that hold it (beta 0.3, gamma 1.0). "acc-55-gentle": the 55 m law with beta 0.4, gamma
     2.0 and its braking capped at 3 m/s^2 (the collision-avoidance limit brakes harder):
-    6 % less energy than acc-55 through the ramp on random EV leads; "acc-55-margin": the
+    6 % less energy than acc-55 through the ramp on random EV leads; "acc-55-gentle-margin": the
     same, stopping 3 m further back (as "eco-margin" below). "eco": the ACC law on the eco reward's desired gap,
     clip(2 s x speed, 5 m, 55 m), with gentler gains (beta 0.1, gamma 0.3): 3 % less fuel
     than the ACC on random ICE leads. "eco-margin": the eco teacher stopping 8 m behind a

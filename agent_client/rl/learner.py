@@ -128,21 +128,22 @@ TEACHER_MARGIN_GAPS = (8.0, 6.0)
 
 
 def make_teacher(name: str) -> AccController | None:
-    """The privileged teacher of a DAgger run (:data:`~agent_client.rl.config.TEACHERS`), or None."""
+    """The privileged teacher of a DAgger run (:data:`~agent_client.rl.config.TEACHERS`), or None.
+
+    A "-margin" name is its law stopping 3 m further back (:data:`TEACHER_MARGIN_GAPS`).
+    """
     if name == "none":
         return None
-    if name == "acc-55":  # the gains that hold 55 m on the EV test windows (docs/training.md)
-        return AccController(fixed_gap=DESIRED_GAP, beta=TEACHER_55_GAINS[0], gamma=TEACHER_55_GAINS[1])
-    if name in ("acc-55-gentle", "acc-55-margin"):
+    law = name.removesuffix("-margin")
+    gaps = dict(zip(("d_safe", "d_min"), TEACHER_MARGIN_GAPS, strict=True)) if law != name else {}
+    if law == "acc-55":  # the gains that hold 55 m on the EV test windows (docs/training.md)
+        return AccController(fixed_gap=DESIRED_GAP, beta=TEACHER_55_GAINS[0], gamma=TEACHER_55_GAINS[1], **gaps)
+    if law == "acc-55-gentle":
         beta, gamma, decel_cap = TEACHER_55_GENTLE
-        d_safe, d_min = TEACHER_MARGIN_GAPS if name == "acc-55-margin" else (AccController.d_safe, AccController.d_min)
-        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap, d_safe=d_safe, d_min=d_min)
-    if name == "eco":  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
-        return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=TEACHER_ECO_GAINS[0], gamma=TEACHER_ECO_GAINS[1])
-    if name == "eco-margin":  # the same law, stopping 3 m further back
-        d_safe, d_min = TEACHER_MARGIN_GAPS
-        return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=TEACHER_ECO_GAINS[0], gamma=TEACHER_ECO_GAINS[1], d_safe=d_safe, d_min=d_min)
-    return AccController()
+        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap, **gaps)
+    if law == "eco":  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
+        return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=TEACHER_ECO_GAINS[0], gamma=TEACHER_ECO_GAINS[1], **gaps)
+    return AccController(**gaps)
 
 
 class Learner:

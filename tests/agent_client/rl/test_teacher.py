@@ -138,7 +138,7 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert make_teacher("eco")(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-margin", "eco", "eco-margin"}
+    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "eco", "eco-margin"}
 
 
 def test_the_gentle_55_m_teacher_caps_its_braking_but_not_its_collision_avoidance():
@@ -166,7 +166,7 @@ def test_the_margin_teacher_follows_as_the_eco_teacher_but_stops_further_back():
     standing = {"gap": 6.0, "v_host": 3.0, "v_lead": 0.0, "a_lead": 0.0, "set_speed": 33.5}
     assert margin(standing) < eco(standing) < 0.0
     assert margin.reference_gap(0.0) == 8.0 and eco.reference_gap(0.0) == 5.0
-    gentle, gentle_margin = make_teacher("acc-55-gentle"), make_teacher("acc-55-margin")
+    gentle, gentle_margin = make_teacher("acc-55-gentle"), make_teacher("acc-55-gentle-margin")
     assert gentle_margin(following) == gentle(following)
     slower = {"gap": 10.0, "v_host": 16.0, "v_lead": 8.0, "a_lead": 0.0, "set_speed": 33.5}
     assert gentle_margin(slower) < gentle(slower) < 0.0  # aiming 6 m behind a slower car, not 3 m
