@@ -430,13 +430,17 @@ class _LocalPool:
         proc = self.ctx.Process(target=_local_actor_main, args=args, name=f"vacc-actor-{i}", daemon=True)
         # An ignored signal stays ignored across exec, and Python keeps it so: a terminal's
         # Ctrl-C during the seconds the actor imports (before its setpgrp) does not kill it.
+        # Blocked here meanwhile, one that arrives while we start it stays pending instead of
+        # being dropped, and reaches our handler once both are restored (handler first).
         main = threading.current_thread() is threading.main_thread()  # signal.signal works only there
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
         try:
             proc.start()
         finally:
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         writer.close()  # ours: so that the reader sees EOF when the actor dies, even mid-message
         self.actors[i] = _Local(proc, reader)
 

@@ -289,9 +289,13 @@ def test_ctrl_c_while_the_actors_start_kills_none_of_them(tmp_path):
     seen: set[int] = set()  # every process of the run: actors, their servers
     try:
         deadline = time.monotonic() + 120
-        while not [p for p in descendants(proc.pid) if "spawn_main" in procs().get(p, (0, ""))[1]]:  # an actor exists
-            assert proc.poll() is None and time.monotonic() < deadline, "no actor started"
+        # both actors exist: they import for seconds yet, still in this process group. (Not
+        # earlier: a Ctrl-C in the milliseconds the learner spends in Process.start, where it
+        # ignores SIGINT so that the actor inherits that, can still be lost; docs/scale-out.md.)
+        while len([p for p in descendants(proc.pid) if "spawn_main" in procs().get(p, (0, ""))[1]]) < 2:
+            assert proc.poll() is None and time.monotonic() < deadline, "the actors did not start"
             time.sleep(0.01)
+        time.sleep(0.2)  # the learner is past Process.start; the actors are still importing
         os.killpg(proc.pid, signal.SIGINT)
         while proc.poll() is None and time.monotonic() < deadline + 60:
             seen |= descendants(proc.pid)
