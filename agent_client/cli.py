@@ -29,7 +29,7 @@ from agent_client.controllers.keyboard import (
     require_display,
     require_pygame,
 )
-from agent_client.drive import drive_episode
+from agent_client.drive import COLD_START_HELP, drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import local_server
 from agent_client.session import GIVE_UP, Session
@@ -100,7 +100,7 @@ def check_start(host_speed: float | None, gap: float | None, set_speed: float) -
         ("--gap", {"set_speed": set_speed, "gap": gap}),
     ):
         try:
-            check_initial(**{"host_speed": None, "gap": None, **values})
+            check_initial(host_speed=values.get("host_speed"), gap=values.get("gap"), set_speed=values["set_speed"])
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint=hint) from None
 
@@ -125,6 +125,7 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--gap", default=None, type=float, metavar="M", help="Initial gap [m], (0, 300). Default: drawn from the seed.")
 @click.option("--set-speed", default=DEFAULT_SET_SPEED, show_default=True, type=float, metavar="M/S", help="Cruise set speed [m/s]: the host never drives faster; the ACC cruises at it.")
 @click.option("--checkpoint", default=None, type=click.Path(dir_okay=False), help="DDQN checkpoint (--controller ddqn).")
+@click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--human-file", default=None, type=click.Path(dir_okay=False), help="Recorded forces (--controller human-file).")
 @click.option("--log", "log_path", required=True, type=click.Path(dir_okay=False, writable=True), help="Run log CSV to write.")
 @click.option("--duration", default=None, type=click.FloatRange(min=0.1), help="Stop after this many simulated seconds.")
@@ -149,6 +150,7 @@ def drive(
     gap: float | None,
     set_speed: float,
     checkpoint: str | None,
+    cold_start: bool,
     human_file: str | None,
     log_path: str,
     duration: float | None,
@@ -229,6 +231,7 @@ def drive(
             summary = drive_episode(
                 session, policy, scenario=scenario, seed=seed, trajectory=trajectory, trace=trace,
                 duration=duration, log=Path(log_path), host_speed=host_speed, gap=gap, set_speed=set_speed,
+                preroll=0 if cold_start else None,
             )  # fmt: skip
     except (FatalSessionError, SessionError) as exc:
         raise click.ClickException(f"{exc} (log so far: {log_path})") from None

@@ -15,7 +15,12 @@ from agent_client.runlog import RunLog
 from agent_client.session import Session
 from protocol.constants import DESIRED_GAP
 
-__all__ = ["DriveSummary", "drive_episode", "DESIRED_GAP", "StopEpisode"]
+__all__ = ["DriveSummary", "drive_episode", "DESIRED_GAP", "StopEpisode", "COLD_START_HELP"]
+
+COLD_START_HELP = (
+    "Engage a DDQN policy at the first frame, its stack that one frame repeated, instead of after "
+    "the seconds of camera pre-roll its stack spans (the host coasting meanwhile; frame 0 is the same either way)."
+)
 
 
 
@@ -67,8 +72,16 @@ def drive_episode(
     host_speed: float | None = None,
     gap: float | None = None,
     set_speed: float | None = None,
+    preroll: int | None = None,
 ) -> DriveSummary:
     """Reset, then step ``controller`` until the episode ends.
+
+    A controller that reads a history (a ``history_steps`` attribute: the DDQN's frame
+    stack) gets that many frames of pre-roll before it engages, as a camera that was on
+    before the driver engaged the ACC (:data:`protocol.scenarios.MAX_PREROLL`); it sees
+    them through its ``warm(obs)`` and the host coasts at its initial speed meanwhile.
+    ``preroll`` overrides that (0: a cold start, where the first frame stands for the
+    whole stack). Frame 0 is the same state either way; the log and the summary start there.
 
     The log is written row by row, so an interrupted run keeps what it drove. A
     controller may raise :class:`StopEpisode` to end the episode early; the summary's
@@ -82,13 +95,19 @@ def drive_episode(
     resends0 = session.resends
     gaps: list[float] = []
     collision = False
+    if preroll is None:
+        preroll = getattr(controller, "history_steps", 0)
     with RunLog(log) as runlog:
         obs = session.reset(
             scenario=scenario, seed=seed, trajectory=trajectory, trace=trace, duration=duration,
-            host_speed=host_speed, gap=gap, set_speed=set_speed,
+            host_speed=host_speed, gap=gap, set_speed=set_speed, preroll=preroll,
         )  # fmt: skip
         if hasattr(controller, "reset"):
             controller.reset()
+        while obs["frame"] < 0:  # the pre-roll: the server ignores the action
+            if hasattr(controller, "warm"):
+                controller.warm(obs)
+            obs = session.step(0.0)
         while True:
             runlog.write(obs)
             gaps.append(obs["gap"])

@@ -233,8 +233,9 @@ class Session:
         host_speed: float | None = None,
         gap: float | None = None,
         set_speed: float | None = None,
+        preroll: int = 0,
     ) -> dict[str, Any]:
-        """Start a new episode; returns the observation of frame 0.
+        """Start a new episode; returns the observation of frame 0 (``-preroll``).
 
         Args:
             scenario: "ice" or "ev".
@@ -245,6 +246,9 @@ class Session:
             host_speed: host's initial speed [m/s]; None: the server draws it.
             gap: initial gap [m]; None: the server draws it.
             set_speed: cruise set speed [m/s]; None: the server's default (33.5).
+            preroll: control steps the camera runs before the controller engages
+                (frames -preroll..-1, the host coasting at its initial speed and the
+                server ignoring the action); frame 0 is the episode's start either way.
 
         Raises:
             SessionError: the server refused the reset (unknown scenario, bad trace,
@@ -267,15 +271,17 @@ class Session:
             "host_speed": None if host_speed is None else float(host_speed),
             "gap": None if gap is None else float(gap),
             "set_speed": None if set_speed is None else float(set_speed),
+            "preroll": int(preroll),
         }
+        first = -int(preroll)
         obs = self._request(
             msg,
-            lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == 0,
+            lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == first,
             f"reset of episode {episode}",
             error_match=lambda e: e["episode"] in (episode, None),
             rtt=self._rtt["reset"],
         )
-        self.frame = 0
+        self.frame = first
         return obs
 
     def step(self, action: float) -> dict[str, Any]:

@@ -34,9 +34,10 @@ __all__ = [
 # 2: reset gained host_speed, gap and set_speed; obs gained set_speed; lead
 #    scenarios as trajectory names (protocol/scenarios.py).
 # 3: welcome gained seed_salt.
-PROTOCOL_VERSION = 3
-# A server also speaks 2 (cheap: only the welcome differs), so older clients keep working.
-SUPPORTED_VERSIONS = (2, 3)
+# 4: reset gained preroll: the camera's frames before the controller engages.
+PROTOCOL_VERSION = 4
+# A server also speaks 2 and 3 (cheap: only the welcome and the reset differ), so older clients keep working.
+SUPPORTED_VERSIONS = (2, 3, 4)
 
 # Image formats a client may ask for in the handshake.
 IMAGE_FORMATS = ("none", "rgb", "gray")
@@ -106,7 +107,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "session_timeout": _FLOAT,  # [s] idle time after which the session is freed
         "seed_salt": _INT,  # the server's --seed as mixed into every episode seed (version 3)
     },
-    # client -> server: start episode `episode` (answered with obs frame 0)
+    # client -> server: start episode `episode` (answered with obs frame 0, or -preroll)
     "reset": {
         "session": _BIN,
         "episode": _INT,  # client's episode counter, strictly increasing
@@ -119,6 +120,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "host_speed": _OPT_FLOAT,  # [m/s] host's initial speed; nil: drawn from the seed
         "gap": _OPT_FLOAT,  # [m] initial gap; nil: drawn from the seed
         "set_speed": _OPT_FLOAT,  # [m/s] cruise set speed; nil: DEFAULT_SET_SPEED (33.5)
+        "preroll": _OPT_INT,  # control steps driven before engagement (answered with obs frame -preroll); nil: 0 (version 4)
     },
     # client -> server: apply `action` at frame `frame` (answered with obs frame+1)
     "step": {
@@ -164,7 +166,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
 MESSAGE_TYPES = frozenset(SCHEMAS)
 
 # (type, field) -> the version that added it; older versions' messages lack it.
-FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3}
+FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4}
 
 
 def schema(kind: str, version: int = PROTOCOL_VERSION) -> dict[str, tuple[str, ...]] | None:

@@ -48,6 +48,8 @@ __all__ = [
     "stopping_gap",
     "check_trajectory",
     "check_initial",
+    "MAX_PREROLL",
+    "PREROLL_MIN_GAP",
 ]
 
 SCENARIOS = ("ice", "ev")  # host vehicle and paper setting (Table 2)
@@ -61,6 +63,13 @@ DEFAULT_SET_SPEED = 33.5  # [m/s] 120.6 km/h, above the ICE leads' 33 m/s maximu
 # accepted so that runs from before the limiter can be repeated exactly (it never binds).
 SET_SPEED_RANGE = (1.0, 80.0)
 GAP_LIMIT = 300.0  # [m] an episode terminates beyond this gap (paper Sec. 3)
+# The pre-roll: the camera's frames before the controller engages, the host coasting
+# at its initial speed and the lead at its own, as a camera that was on before the
+# driver engaged the ACC would have seen them (frames -preroll..-1 of an episode).
+MAX_PREROLL = 100  # [control steps] 10 s
+# [m] a lead faster than the host is drawn no closer than this in the pre-roll (it
+# would otherwise have been behind the host a few seconds earlier: it had cut in)
+PREROLL_MIN_GAP = 5.0
 
 # Physical sanity limits of a user's lead trace; it is driven as given inside them.
 TRACE_SPEED_MAX = 70.0  # [m/s] 252 km/h
@@ -234,8 +243,8 @@ def check_trajectory(name: str) -> str:
     return name
 
 
-def check_initial(*, host_speed: float | None, gap: float | None, set_speed: float | None) -> None:
-    """Check a reset's optional initial host speed [m/s], gap [m] and set speed [m/s].
+def check_initial(*, host_speed: float | None, gap: float | None, set_speed: float | None, preroll: int = 0) -> None:
+    """Check a reset's optional initial host speed [m/s], gap [m] and set speed [m/s], and its pre-roll [steps].
 
     Raises:
         ValueError: one line naming the value and its allowed range.
@@ -248,3 +257,5 @@ def check_initial(*, host_speed: float | None, gap: float | None, set_speed: flo
         raise ValueError(f"host speed {host_speed!r} m/s is outside 0..{v_set:g} m/s (the set speed)")
     if gap is not None and not (math.isfinite(gap) and 0.0 < gap < GAP_LIMIT):
         raise ValueError(f"gap {gap!r} m is outside (0, {GAP_LIMIT:g}) m")
+    if not 0 <= preroll <= MAX_PREROLL:
+        raise ValueError(f"preroll {preroll!r} is outside 0..{MAX_PREROLL} control steps")

@@ -333,13 +333,14 @@ class SimServer:
             state = self.world.reset(
                 msg["scenario"], msg["seed"], msg["trajectory"], trace=trace, duration=duration,
                 host_speed=msg["host_speed"], gap=msg["gap"], set_speed=msg["set_speed"],
+                preroll=msg.get("preroll") or 0,  # absent before version 4
             )  # fmt: skip
         except SimError as exc:
             self._error(s, addr, ErrorCode.BAD_RESET, str(exc), episode=episode)
             return
-        s.episode, s.frame, s.state = episode, 0, state
+        s.episode, s.frame, s.state = episode, state.frame, state
         s.step_reply = []
-        s.wall_start = time.monotonic()
+        s.wall_start = time.monotonic() - state.t  # a pre-roll starts at t < 0
         s.reset_reply = self.endpoint.send(self._obs(s, state), addr, s.version)
 
     def _step(self, s: _Session, msg: dict[str, Any], addr: Any) -> None:

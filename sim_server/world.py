@@ -28,6 +28,7 @@ from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     GAP_LIMIT,
     LEAD_SCENARIOS,
+    PREROLL_MIN_GAP,
     SCENARIOS,
     TRACE,
     check_initial,
@@ -120,8 +121,9 @@ class World:
         host_speed: float | None = None,
         gap: float | None = None,
         set_speed: float | None = None,
+        preroll: int = 0,
     ) -> WorldState:
-        """Start an episode; returns frame 0.
+        """Start an episode; returns frame 0, or frame ``-preroll``.
 
         Args:
             scenario: "ice" or "ev".
@@ -134,6 +136,11 @@ class World:
                 the set speed: a drawn speed above it starts at the set speed.
             gap: initial gap [m]; default drawn.
             set_speed: cruise set speed [m/s]; default 33.5.
+            preroll: control steps before the start (frames -preroll..-1) in which
+                the camera already runs: the host coasts at its initial speed
+                whatever the action, the lead drives at its initial speed (a faster
+                one no closer than PREROLL_MIN_GAP), traffic at its own. Frame 0 is
+                then the state a reset without pre-roll starts in, bit for bit.
 
         Raises:
             ScenarioError, TrajectoryError: unknown names or a bad trace.
@@ -143,7 +150,7 @@ class World:
         if scenario not in SCENARIOS:
             raise ScenarioError(f"unknown scenario {scenario!r}; expected one of {list(SCENARIOS)}")
         try:
-            check_initial(host_speed=host_speed, gap=gap, set_speed=set_speed)
+            check_initial(host_speed=host_speed, gap=gap, set_speed=set_speed, preroll=preroll)
         except ValueError as exc:
             raise InitialConditionError(str(exc)) from None
         v_set = DEFAULT_SET_SPEED if set_speed is None else float(set_speed)
@@ -184,9 +191,37 @@ class World:
         self._rng = rng
         self._collided = False
         self.odometer = 0.0  # [m] host distance travelled
-        self.step_index = 0  # physics steps since reset
-        self.state = self._state(0, 0.0, 0.0, 0.0, 0.0)
+        self.step_index = 0  # physics steps since the start (frame 0)
+        self.preroll_left = preroll
+        if preroll:
+            self._start_preroll(preroll)
+        self.state = self._state(-preroll, 0.0, 0.0, 0.0, -(preroll * cfg.substeps) * cfg.physics_dt)
         return self.state
+
+    def _start_preroll(self, preroll: int) -> None:
+        # Every body moved back along its own speed; frame 0 puts back what is saved here.
+        span = preroll * self.config.control_period  # [s]
+        v_host, v_lead = self.host.velocity.x, self.lead.velocity.x
+        gap0 = self.lead.position.x - self.host.position.x - CAR_LENGTH
+        v_lead = min(v_lead, v_host + max(gap0 - PREROLL_MIN_GAP, 0.0) / span)
+        self._start_positions = [(b, b.position) for b in (self.host, self.lead, *(t[0] for t in self.traffic))]
+        for body, (x, y) in self._start_positions:
+            v = v_lead if body is self.lead else body.velocity.x
+            body.position = (x - v * span, y)
+        self.lead.velocity = (v_lead, 0.0)
+        self._reindex()
+        self.odometer = -v_host * span
+
+    def _end_preroll(self) -> None:
+        for body, position in self._start_positions:
+            body.position = position
+        self.lead.velocity = (float(self.v_lead_profile[0]), 0.0)
+        self._reindex()
+        self.odometer = 0.0
+
+    def _reindex(self) -> None:
+        for body, _ in self._start_positions:
+            self.space.reindex_shapes_for_body(body)
 
     def _spawn_traffic(self, rng: np.random.Generator, v_mean: float) -> None:
         # Faster traffic on the left, slower on the right (paper Sec. 3); oncoming
@@ -232,6 +267,8 @@ class World:
         if state is None or state.terminated or state.truncated:
             raise RuntimeError("step on an episode that is over or not started")
         a_cmd = accel_of_force(u)
+        if self.preroll_left:
+            return self._preroll_step()
         cfg = self.config
         dt = cfg.physics_dt
         v0_host, v0_lead = state.v_host, state.v_lead
@@ -260,10 +297,25 @@ class World:
         )
         return self.state
 
+    def _preroll_step(self) -> WorldState:
+        # Before the start: everything at constant speed, the action ignored, the
+        # lead's profile not begun, no traffic respawned (that would draw from the
+        # episode's generator); nothing here can end the episode.
+        cfg = self.config
+        for _ in range(cfg.substeps):
+            self.odometer += self.host.velocity.x * cfg.physics_dt
+            self.space.step(cfg.physics_dt)
+        self.preroll_left -= 1
+        if not self.preroll_left:
+            self._end_preroll()
+        assert self.state is not None
+        self.state = self._state(self.state.frame + 1, 0.0, 0.0, 0.0, -(self.preroll_left * cfg.substeps) * cfg.physics_dt)
+        return self.state
+
     def _state(self, frame: int, accel: float, a_lead: float, force: float, t: float) -> WorldState:
         gap = self.lead.position.x - self.host.position.x - CAR_LENGTH
         collision = self._collided or gap <= 0.0
-        reason = "collision" if collision else "gap" if gap > GAP_LIMIT else ""
+        reason = "collision" if collision else "gap" if gap > GAP_LIMIT and frame >= 0 else ""
         truncated = not reason and frame >= self.last_frame
         return WorldState(
             frame=frame,

@@ -24,6 +24,7 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
+from agent_client.drive import COLD_START_HELP
 from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
@@ -130,6 +131,7 @@ class Job:
     duration: float | None
     checkpoint: str | None = None
     human_file: str | None = None
+    cold_start: bool = False  # engage a DDQN policy at frame 0, without the camera's pre-roll
 
 
 def _controller(job: Job) -> Any:
@@ -163,7 +165,8 @@ def run_job(job: Job) -> Job:
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
     with local_server(stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
-        drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log)
+        drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
+                      preroll=0 if job.cold_start else None)  # fmt: skip
     if job.method == "lead":
         _lead_log(log, Path(job.log))
         log.unlink()
@@ -427,8 +430,9 @@ def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
 @click.option("--seed", default=None, type=int, help="One episode seed (initial conditions, traffic, scenery); the same as --seeds N.")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
+@click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table.")
-def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, suite: str) -> dict[str, Any] | None:
+def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table).
 
@@ -439,7 +443,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
         from vacc.safety import run_suite
 
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in ("ice", "ev")}
-        click.echo(run_suite(Path(out), found, seed_list, jobs))
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:
@@ -470,7 +474,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
     named = seed_list if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
     work = [
-        Job(m, t, scenario, s, str(log_path(out_dir, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None)
+        Job(m, t, scenario, s, str(log_path(out_dir, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None, cold_start)
         for m in chosen
         for t in TRAJECTORIES
         for s in seed_list

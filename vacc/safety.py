@@ -45,7 +45,9 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(seeds)
 
 
-def safety_jobs(job_type: Callable[..., Any], out: Path, models: dict[str, str], seeds: Iterable[int], scenarios: Iterable[str] = tuple(LEAD_SCENARIOS)) -> list[Any]:
+def safety_jobs(
+    job_type: Callable[..., Any], out: Path, models: dict[str, str], seeds: Iterable[int], scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), cold_start: bool = False
+) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
     Args:
@@ -54,11 +56,12 @@ def safety_jobs(job_type: Callable[..., Any], out: Path, models: dict[str, str],
         models: method name ("ice-gap", ...) to checkpoint path; the vehicle is the prefix.
         seeds: episode seeds.
         scenarios: lead scenario names.
+        cold_start: engage the models at frame 0, without the camera's pre-roll.
     """
     drivers = [("acc", "ice", None), ("acc", "ev", None)] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
-                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path)  # fmt: skip
+                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start)  # fmt: skip
         for method, vehicle, path in drivers
         for trajectory in scenarios
         for seed in seeds
@@ -104,7 +107,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     return "\n".join(lines) + "\n", rows
 
 
-def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int) -> str:
+def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False) -> str:
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
@@ -113,7 +116,7 @@ def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int) ->
     from vacc.evaluate import Job, drive_jobs
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds)
+    work = safety_jobs(Job, out, models, seeds, cold_start=cold_start)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)

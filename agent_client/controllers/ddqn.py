@@ -52,12 +52,13 @@ class DDQNController:
         self.stacker.reset()
         self.actions.reset()
 
-    def act(self, stacked: dict[str, np.ndarray]) -> int:
-        """Greedy action index for a stacked observation (frames, speeds and, if observed, controls)."""
-        return greedy_action(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls"))
+    @property
+    def history_steps(self) -> int:
+        """Control steps of camera history its stack spans: the pre-roll ``vacc drive`` gives it."""
+        return (self.cfg.frame_stack - 1) * self.cfg.stack_stride
 
-    def __call__(self, obs: dict[str, Any]) -> float:
-        """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
+    def warm(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Stack a frame from before it engages (the pre-roll), deciding nothing; returns the stack."""
         from agent_client.session import Session
 
         image = Session.image(obs)
@@ -67,5 +68,12 @@ class DDQNController:
         if self.actions.n_controls:
             self.actions.observe(float(obs["accel"]))  # anti-windup, as in the env
             controls = self.actions.controls(float(obs["set_speed"]))
-        stacked = self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
-        return self.actions.force(self.act(stacked))
+        return self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
+
+    def act(self, stacked: dict[str, np.ndarray]) -> int:
+        """Greedy action index for a stacked observation (frames, speeds and, if observed, controls)."""
+        return greedy_action(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls"))
+
+    def __call__(self, obs: dict[str, Any]) -> float:
+        """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
+        return self.actions.force(self.act(self.warm(obs)))

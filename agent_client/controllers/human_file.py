@@ -56,8 +56,9 @@ PADS = ("error", "hold", "zero")
 REQUIRED_KEYS = ("scenario", "trajectory", "seed", "control_period", "protocol")
 PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not strings
 # Protocol 2 only added reset and obs fields (initial conditions, set speed), so a
-# protocol-1 recording replays the same run below the default 33.5 m/s set speed.
-REPLAYABLE_PROTOCOLS = (1, 2, PROTOCOL_VERSION)
+# protocol-1 recording replays the same run below the default 33.5 m/s set speed;
+# 3 and 4 changed only the handshake and the pre-roll, which a recording starts after.
+REPLAYABLE_PROTOCOLS = (1, 2, 3, PROTOCOL_VERSION)
 START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
 
 
@@ -298,6 +299,17 @@ class RecordingController:
         reset = getattr(self.inner, "reset", None)
         if reset is not None:
             reset()
+
+    @property
+    def history_steps(self) -> int:
+        """The wrapped controller's pre-roll (nothing is recorded before frame 0)."""
+        return int(getattr(self.inner, "history_steps", 0))
+
+    def warm(self, obs: dict[str, Any]) -> None:
+        """Pass a pre-roll frame to the wrapped controller."""
+        warm = getattr(self.inner, "warm", None)
+        if warm is not None:
+            warm(obs)
 
     def __call__(self, obs: dict[str, Any]) -> float:
         u = float(self.inner(obs))

@@ -282,7 +282,7 @@ def test_well_formed_but_bad_traces_get_bad_reset_not_internal(server, trace_t, 
     with Session(server) as s:
         s.episode += 1
         msg = {"type": "reset", "session": s.token, "episode": s.episode, "scenario": "ice", "seed": 0, "trajectory": "trace",
-               "trace_t": trace_t, "trace_v": trace_v, "duration": None, "host_speed": None, "gap": None, "set_speed": None}  # fmt: skip
+               "trace_t": trace_t, "trace_v": trace_v, "duration": None, "host_speed": None, "gap": None, "set_speed": None, "preroll": None}  # fmt: skip
         with pytest.raises(SessionError, match=f"BAD_RESET.*{words}"):
             s._request(msg, lambda r: r["type"] == "obs", "reset", error_match=lambda e: True)
         assert s.reset(seed=1, duration=1e308)["frame"] == 0  # a huge duration: the whole trajectory, no OverflowError

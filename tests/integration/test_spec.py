@@ -143,7 +143,7 @@ def test_fragmented_requests_are_accepted(server):
 def test_a_datagram_of_65507_bytes_is_accepted(server):
     with Session(server) as s:
         base = {"type": "reset", "session": s.token, "episode": 0, "scenario": "ice", "seed": 0, "trajectory": "trace",
-                "trace_t": [0.0, 1.0], "trace_v": [10.0, 10.0], "duration": None, "host_speed": None, "gap": None, "set_speed": None}  # fmt: skip
+                "trace_t": [0.0, 1.0], "trace_v": [10.0, 10.0], "duration": None, "host_speed": None, "gap": None, "set_speed": None, "preroll": None}  # fmt: skip
         n = (65507 - HEADER_BYTES - len(codec.encode(base)) + 18) // 18 + 1
         for k in range(n, n - 20, -1):
             base.update(trace_t=[float(i) for i in range(k)], trace_v=[10.0] * k)

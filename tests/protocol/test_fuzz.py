@@ -22,7 +22,7 @@ msgpack_values = st.recursive(
 VALID = [
     codec.encode({"type": "step", "session": b"\x01" * 16, "episode": 0, "frame": 3, "action": 0.5}),
     codec.encode({"type": "hello", "version": 1, "nonce": b"12345678", "client": "c", "image_format": "gray", "image_width": 200, "image_height": 200, "max_datagram": 65000}),
-    codec.encode({"type": "reset", "session": b"\x01" * 16, "episode": 1, "scenario": "ev", "seed": 2, "trajectory": "trace", "trace_t": [0.0, 1.0], "trace_v": [3.0, 4.0], "duration": None, "host_speed": 0.0, "gap": None, "set_speed": None}),
+    codec.encode({"type": "reset", "session": b"\x01" * 16, "episode": 1, "scenario": "ev", "seed": 2, "trajectory": "trace", "trace_t": [0.0, 1.0], "trace_v": [3.0, 4.0], "duration": None, "host_speed": 0.0, "gap": None, "set_speed": None, "preroll": None}),
 ]  # fmt: skip
 
 

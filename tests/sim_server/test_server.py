@@ -37,6 +37,7 @@ class Harness:
         self.addr = self.sock.getsockname()
         self.client = Endpoint(self.sock, versions=m.SUPPORTED_VERSIONS)
         self.token = b""
+        self.version = m.PROTOCOL_VERSION
 
     def close(self) -> None:
         self.client.close()
@@ -62,13 +63,13 @@ class Harness:
                "image_width": size[0], "image_height": size[1], "max_datagram": 65000}  # fmt: skip
         [(_, reply)] = self.ask(msg, version=version)
         if reply["type"] == "welcome":
-            self.token = reply["session"]
+            self.token, self.version = reply["session"], version
         return reply
 
     def reset(self, episode: int = 0, **fields) -> dict:
         msg = {"type": "reset", "session": self.token, "episode": episode, "scenario": "ice", "seed": 0, "trajectory": "test-1",
-               "trace_t": None, "trace_v": None, "duration": None, "host_speed": None, "gap": None, "set_speed": None}  # fmt: skip
-        [(_, reply)] = self.ask({**msg, **fields})
+               "trace_t": None, "trace_v": None, "duration": None, "host_speed": None, "gap": None, "set_speed": None, "preroll": None}  # fmt: skip
+        [(_, reply)] = self.ask(m.for_version({**msg, **fields}, self.version), version=self.version)
         return reply
 
     def step(self, episode: int, frame: int, action: float) -> dict:
@@ -238,7 +239,8 @@ def near_valid_reset(draw) -> dict:
     times, speeds = draw(trace()) if trajectory == "trace" else (None, None)
     return {"type": "reset", "session": "token", "episode": draw(INTS), "scenario": draw(st.sampled_from(["ice", "ev"])), "seed": draw(INTS),
             "trajectory": trajectory, "trace_t": times, "trace_v": speeds, "duration": draw(OPTIONAL | st.just(0.05)),
-            "host_speed": draw(OPTIONAL), "gap": draw(OPTIONAL), "set_speed": draw(OPTIONAL)}  # fmt: skip
+            "host_speed": draw(OPTIONAL), "gap": draw(OPTIONAL), "set_speed": draw(OPTIONAL),
+            "preroll": draw(st.none() | INTS | st.sampled_from([0, 1, 14, 100, 101, -1]))}  # fmt: skip
 
 
 @st.composite
@@ -290,3 +292,23 @@ def test_internal_is_unreachable_from_well_formed_requests(h, script, data):
             h.token = replies[0][1]["session"]
     assert h.server.stats["internal_errors"] == 0
     assert time.monotonic() - started < 20.0  # bounded: a request never stalls the server
+
+
+def test_a_preroll_reset_answers_frame_minus_n_and_steps_on_to_the_cold_start(h):
+    h.hello()
+    cold = h.reset(episode=0)
+    first = h.reset(episode=1, preroll=3)
+    assert (first["frame"], first["t"]) == (-3, pytest.approx(-0.3))
+    obs = first
+    for frame in (-3, -2, -1):
+        obs = h.step(1, frame, -1.0)  # ignored before the start: the host coasts
+        assert obs["force"] == 0.0 and obs["v_host"] == cold["v_host"]
+    assert obs["frame"] == 0 and {k: v for k, v in obs.items() if k != "episode"} == {k: v for k, v in cold.items() if k != "episode"}
+    refused = h.reset(episode=2, preroll=101)
+    assert refused["code"] == ErrorCode.BAD_RESET and "preroll 101 is outside 0..100" in refused["detail"]
+
+
+def test_a_version_3_client_resets_without_a_preroll_field(h):
+    assert h.hello(version=3)["version"] == 3
+    obs = h.reset()
+    assert obs["type"] == "obs" and obs["frame"] == 0

@@ -3,8 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from protocol.scenarios import MAX_PREROLL, PREROLL_MIN_GAP
 from sim_server import trajectory as T
-from sim_server.errors import ScenarioError, TrajectoryError
+from sim_server.errors import InitialConditionError, ScenarioError, TrajectoryError
 from sim_server.vehicle import accel_of_force, advance_speed
 from sim_server.world import GAP_LIMIT, World, WorldConfig
 
@@ -190,3 +191,46 @@ def test_obs_t_is_physics_steps_times_dt():
     state = world.reset("ice", 0, "stopped", host_speed=16.0, gap=0.5)
     state = world.step(1.0)
     assert state.collision and state.t < 5 * 0.02 and round(state.t / 0.02) == world.step_index
+
+
+@pytest.mark.parametrize("trajectory", ["stopped", "catch-up", "brake-stop", "test-1", "random"])
+def test_a_preroll_ends_in_the_cold_start_bit_for_bit(trajectory):
+    # The camera runs before the start, but from frame 0 the episode is the cold one:
+    # same state, same scene, same states under the same actions (the pre-roll's
+    # actions are ignored and nothing is drawn from the episode's generator).
+    actions = np.random.default_rng(5).uniform(-0.3, 0.3, 150)
+    cold, warm = World(), World()
+    a = run(cold, actions, scenario="ice", seed=4, trajectory=trajectory)
+    first = warm.reset("ice", 4, trajectory, preroll=14)
+    assert (first.frame, first.t) == (-14, pytest.approx(-1.4))
+    pre = [first] + [warm.step(1.0) for _ in range(14)]
+    assert [s.frame for s in pre] == list(range(-14, 1))
+    assert all(s.force == 0.0 and s.accel == 0.0 and s.v_host == a[0].v_host for s in pre)
+    assert pre[-1] == a[0]
+    b = [pre[-1]]
+    for u in actions[: len(a) - 1]:
+        b.append(warm.step(u))
+    assert b == a
+    assert warm.scene() == cold.scene()
+
+
+def test_the_preroll_shows_the_approach_and_never_ends_the_episode():
+    w = World()
+    first = w.reset("ice", 2, "stopped", preroll=30)
+    host_speed = first.v_host
+    gaps = [first.gap] + [w.step(0.0).gap for _ in range(30)]
+    # the host closes on the standing car at its own speed: 3 s of it
+    assert gaps[0] - gaps[-1] == pytest.approx(host_speed * 3.0)
+    assert np.all(np.diff(gaps) < 0)
+    # a lead much faster than the host is drawn no closer than PREROLL_MIN_GAP
+    w.reset("ice", 3, "catch-up", preroll=100)
+    gaps = [w.state.gap] + [w.step(0.0).gap for _ in range(100)]
+    assert min(gaps) >= PREROLL_MIN_GAP - 1e-9
+    assert w.state.frame == 0 and not w.state.terminated
+
+
+def test_a_bad_preroll_is_refused_with_its_range():
+    with pytest.raises(InitialConditionError, match=r"preroll 101 is outside 0\.\.100"):
+        World().reset("ice", 0, "test-1", preroll=MAX_PREROLL + 1)
+    with pytest.raises(InitialConditionError, match="preroll -1"):
+        World().reset("ice", 0, "test-1", preroll=-1)
