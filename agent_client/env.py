@@ -113,6 +113,10 @@ class VisionACCEnv(gym.Env):
     episode), "test-1".."test-4" or a lead scenario (``stopped``, ``brake-stop``, ...;
     :data:`protocol.scenarios.TRAJECTORIES`). ``set_speed``: cruise set speed [m/s],
     None for the default. ``frame_stack``, ``stack_stride``: the stack.
+    ``preroll``: start each episode after the camera pre-roll the stack spans, the host
+    coasting meanwhile (protocol 4, docs/scenarios.md), so the first observation stacks
+    real frames; its ``info["preroll"]`` holds those frames' newest entries. False: the
+    first frame repeated.
     ``zoom``: 1, the paper's preprocessing (a 200x200 gray camera, the 400x400 one
     halved); 2, the same 105x150 window at full resolution (a 400x400 gray camera;
     :mod:`agent_client.preprocess`).
@@ -121,7 +125,7 @@ class VisionACCEnv(gym.Env):
     * v0: first version; lead scenarios, ``set_speed`` and the ``host_speed``/``gap``
       reset options added with protocol version 2; ``action="steps"``; colour
       ``rgb_array``, ``human`` rendering and ``max_episode_steps`` (no change to
-      observations, rewards or dynamics, so still v0).
+      observations, rewards or dynamics, so still v0); ``preroll`` (off by default).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": round(1.0 / CONTROL_PERIOD)}
@@ -144,6 +148,7 @@ class VisionACCEnv(gym.Env):
         key_file: str | None = None,
         action: str = "levels",
         eco_weights: tuple[float, ...] = ECO_WEIGHTS,
+        preroll: bool = False,
     ):
         if action not in ACTION_TYPES:
             raise ValueError(f"action {action!r} is not one of {ACTION_TYPES}")
@@ -166,6 +171,7 @@ class VisionACCEnv(gym.Env):
                     stacklevel=2,
                 )
         image_size = pre.camera_size(zoom)  # checks zoom
+        self.preroll = (frame_stack - 1) * stack_stride if preroll else 0
         self.zoom = zoom
         self.scenario, self.trajectory = scenario, trajectory
         self.set_speed = set_speed
@@ -232,12 +238,20 @@ class VisionACCEnv(gym.Env):
             host_speed=host_speed,
             gap=gap,
             set_speed=set_speed,
+            preroll=self.preroll,
         )
         self._stacker.reset()
         self.actions.reset()
+        history = []
+        while obs["frame"] < 0:  # the pre-roll: stacked, not acted on (the server ignores the action)
+            stacked = self._observe(obs)
+            history.append({k: v[-1:] for k, v in stacked.items()})
+            obs = self.session.step(0.0)
         self._a_prev = float(obs.get("accel", 0.0))
         info = self._info(obs)
         info["seed"] = episode_seed
+        if self.preroll:
+            info["preroll"] = history  # each frame's newest entries, for a replay memory (ReplayMemory.warm)
         observation = self._observe(obs)
         self._after(info)
         return observation, info

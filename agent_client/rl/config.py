@@ -112,6 +112,11 @@ class Config:
     """Frames (and host speeds) per observation (paper: 8)."""
     stack_stride: int = 2
     """Control steps between stacked frames (2: the stack spans 1.4 s)."""
+    preroll: bool = False
+    """Start every training and evaluation episode after the camera pre-roll the stack spans
+    ((frame_stack - 1) x stack_stride control steps, the host coasting), as vacc drive and
+    vacc evaluate start a policy (docs/scenarios.md). Off: the first frame stands for the
+    whole stack, as in the runs before protocol 4."""
     speed_scale: float = 30.0
     """[m/s] host speeds are divided by this before the network."""
     zoom: int = 1
@@ -190,6 +195,8 @@ class Config:
             raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
+        if self.preroll and self.servers != 1:
+            raise bad("preroll", "a pre-roll needs servers=1 (the K-stream trainer starts its episodes cold)")
         if self.action != "levels" and self.servers != 1:
             raise bad("action", f"{self.action!r} needs servers=1 (the K-stream trainer stores no controls)")
         if not self.train_trajectories:

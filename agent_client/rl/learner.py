@@ -393,7 +393,7 @@ class Learner:
                 scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=self.server_args, zoom=cfg.zoom, set_speed=cfg.set_speed,
-                action=cfg.action, eco_weights=cfg.eco_weights,
+                action=cfg.action, eco_weights=cfg.eco_weights, preroll=cfg.preroll,
             ))  # fmt: skip
         self.q.eval()
         self.last_eval = evaluate(self.q, self._eval_env, cfg.eval_trajectories)

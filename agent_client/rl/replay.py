@@ -80,6 +80,7 @@ class ReplayMemory:
         self.truncated = np.zeros(capacity, np.bool_)
         self.has_next = np.zeros(capacity, np.bool_)  # slot i + 1 is this episode's next obs
         self.total = 0  # slots ever written
+        self._warm = 0  # pre-roll frames written for the episode about to start
         self.transitions = 0  # transitions ever added
         self._frames_t = torch.from_numpy(self.frames)  # shares memory: index_select reads it in place
         self._out: torch.Tensor | None = None
@@ -109,9 +110,16 @@ class ReplayMemory:
         self.terminated[j] = self.truncated[j] = False
         self.total += 1
 
+    def warm(self, obs: dict[str, np.ndarray]) -> None:
+        """Store a frame of the camera's pre-roll before the episode's first observation:
+        the first stacks reach back into it, and it is never a transition's start."""
+        self._write(obs, self._warm)
+        self._warm += 1
+
     def start(self, obs: dict[str, np.ndarray]) -> None:
-        """Begin an episode with its first observation."""
-        self._write(obs, 0)
+        """Begin an episode with its first observation (after its :meth:`warm` frames, if any)."""
+        self._write(obs, self._warm)
+        self._warm = 0
 
     def add(self, action: int, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray]) -> None:
         """Record the transition from the newest slot, and the next observation."""

@@ -106,7 +106,7 @@ def train(
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
-            set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights,
+            set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights, preroll=cfg.preroll,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)
     finally:
@@ -143,6 +143,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
                 options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
             obs, info = env.reset(options=options)
+            for frame in info.get("preroll", ()):
+                memory.warm(frame)
             memory.start(obs)
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)

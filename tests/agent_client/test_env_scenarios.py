@@ -53,3 +53,25 @@ def test_bad_constructor_arguments():
         VisionACCEnv(("127.0.0.1", 9), trajectory="test-9")
     with pytest.raises(ValueError, match="set speed 0.5 m/s"):
         VisionACCEnv(("127.0.0.1", 9), set_speed=0.5)
+
+
+def test_a_preroll_env_starts_with_real_frames_and_the_same_frame_0(server):
+    import numpy as np
+
+    firsts = {}
+    for preroll in (False, True):
+        env = VisionACCEnv(server, trajectory="stopped", episode_seconds=2.0, frame_stack=8, stack_stride=2, action="ramp-fine", preroll=preroll)
+        try:
+            obs, info = env.reset(options={"seed": 3})
+            firsts[preroll] = obs, info
+        finally:
+            env.close()
+    (cold, cold_info), (warm, warm_info) = firsts[False], firsts[True]
+    assert "preroll" not in cold_info and len(warm_info["preroll"]) == 14
+    assert all(np.array_equal(f, cold["frames"][0]) for f in cold["frames"])
+    assert len({f.tobytes() for f in warm["frames"]}) == 8  # the standing car growing
+    assert np.array_equal(warm["frames"][-1], cold["frames"][-1]) and warm_info["gap"] == cold_info["gap"]
+    # the stack's older frames are the pre-roll's, every stride-th one
+    for k, frame in enumerate(warm["frames"][:-1]):
+        assert np.array_equal(frame, warm_info["preroll"][2 * k]["frames"][-1])
+    assert all(f["controls"][-1][0] == 0.0 for f in warm_info["preroll"])  # coasting: no force held

@@ -35,13 +35,17 @@ FRAME_BYTES = FRAME_H * FRAME_W  # one preprocessed frame, uint8
 MODELS_DIR = Path(__file__).parents[3] / "models"
 
 
-def _fill(memory: ReplayMemory, rng: np.random.Generator, lengths: list[int], ends: list[str]):
-    """Play synthetic episodes into ``memory``; return each slot's expected stack."""
+def _fill(memory: ReplayMemory, rng: np.random.Generator, lengths: list[int], ends: list[str], preroll: int = 0):
+    """Play synthetic episodes into ``memory`` (each after ``preroll`` frames of pre-roll, as
+    the env's info["preroll"] gives them); return each slot's expected stack."""
     stacker = FrameStacker(memory.frame_stack, memory.stack_stride)
     expected: dict[int, dict[str, np.ndarray]] = {}
     flags: dict[int, tuple[bool, bool]] = {}
     for n, end in zip(lengths, ends, strict=True):
         stacker.reset()
+        for _ in range(preroll):
+            stacked = stacker.push(rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8), float(rng.uniform(0, 40)))
+            memory.warm({k: v[-1:] for k, v in stacked.items()})
         frame = rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
         obs = stacker.push(frame, float(rng.uniform(0, 40)))
         memory.start(obs)
@@ -57,11 +61,11 @@ def _fill(memory: ReplayMemory, rng: np.random.Generator, lengths: list[int], en
     return expected, flags
 
 
-@pytest.mark.parametrize("stride", [1, 3])
-def test_replay_rebuilds_the_env_stacks_across_episode_boundaries(stride):
+@pytest.mark.parametrize(("stride", "preroll"), [(1, 0), (3, 0), (2, 14), (3, 5)])
+def test_replay_rebuilds_the_env_stacks_across_episode_boundaries(stride, preroll):
     rng = np.random.default_rng(0)
-    memory = ReplayMemory(60, 8, stride)
-    expected, _ = _fill(memory, rng, [5, 1, 30, 12, 40], ["terminated", "truncated", "truncated", "terminated", "cut"])
+    memory = ReplayMemory(60 + 5 * preroll, 8, stride)
+    expected, _ = _fill(memory, rng, [5, 1, 30, 12, 40], ["terminated", "truncated", "truncated", "terminated", "cut"], preroll)
     checked = 0
     for i, obs in expected.items():
         pos = memory.pos[i % memory.capacity]
@@ -74,13 +78,14 @@ def test_replay_rebuilds_the_env_stacks_across_episode_boundaries(stride):
     assert checked > 40
 
 
-def test_replay_samples_whole_valid_transitions_only():
+@pytest.mark.parametrize("preroll", [0, 14])
+def test_replay_samples_whole_valid_transitions_only(preroll):
     rng = np.random.default_rng(1)
-    memory = ReplayMemory(50, 8, 2)
-    expected, flags = _fill(memory, rng, [10, 25, 3, 20], ["terminated", "terminated", "truncated", "cut"])
+    memory = ReplayMemory(50 + 4 * preroll, 8, 2)
+    expected, flags = _fill(memory, rng, [10, 25, 3, 20], ["terminated", "terminated", "truncated", "cut"], preroll)
     batch = memory.sample(256, rng)
     for b, i in enumerate(batch.indices):
-        assert i in flags, "sampled an episode's last observation as a start"
+        assert i in flags, "sampled an episode's last observation, or a pre-roll frame, as a start"
         np.testing.assert_array_equal(batch.frames[b], expected[i]["frames"])
         np.testing.assert_array_equal(batch.next_frames[b], expected[i + 1]["frames"])
         np.testing.assert_array_equal(batch.next_speeds[b], expected[i + 1]["speeds"])
@@ -472,6 +477,8 @@ def test_a_failed_checkpoint_removes_the_replay_it_wrote_and_the_last_one_resume
 def test_config_rejects_bad_values():
     with pytest.raises(ValueError, match="reward"):
         Config(reward="speed")
+    with pytest.raises(ValueError, match="a pre-roll needs servers=1"):
+        Config(preroll=True, servers=2)
     with pytest.raises(ValueError, match="scenario"):
         Config(scenario="moon")
 

@@ -54,6 +54,19 @@ def test_resume_continues_exactly_as_an_uninterrupted_run(tmp_path):
     assert names(tmp_path / "whole") == names(tmp_path / "split")
 
 
+def test_a_preroll_run_trains_evaluates_and_resumes_exactly(tmp_path):
+    # Episodes start after the camera's pre-roll; the replay keeps those frames for the first stacks.
+    cfg = Config(**{**TINY.__dict__, "preroll": True, "train_trajectories": ("stopped", "random"), "eval_trajectories": ("stopped:1",), "eval_seconds": 1.0})
+    whole = train(cfg, tmp_path / "whole", progress=False)
+    train(Config(**{**cfg.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = _state(tmp_path / "whole"), _state(tmp_path / "split")
+    assert whole["steps"] == 120 and a["state"]["episodes"] == b["state"]["episodes"] > 1
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    assert whole["last_eval"] and json.loads((tmp_path / "whole" / "config.json").read_text())["preroll"] is True
+
+
 def test_resume_may_change_when_it_evaluates_saves_and_logs(tmp_path):
     """eval_every, checkpoint_every and log_every touch neither learning nor the RNG;
     the held-out "random:S" evaluation is the episode `vacc drive --seed S` drives."""
