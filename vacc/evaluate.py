@@ -431,7 +431,7 @@ def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
-@click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table.")
+@click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given.")
 def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table).
@@ -442,8 +442,11 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     if suite == "safety":
         from vacc.safety import run_suite
 
-        found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in ("ice", "ev")}
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start))
+        # Both vehicles, unless --scenario was given: then that one's ACC and models only.
+        given = click.get_current_context().get_parameter_source("scenario") == click.core.ParameterSource.COMMANDLINE
+        vehicles = (scenario,) if given else ("ice", "ev")
+        found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in vehicles}
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:

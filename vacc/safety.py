@@ -46,7 +46,13 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def safety_jobs(
-    job_type: Callable[..., Any], out: Path, models: dict[str, str], seeds: Iterable[int], scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), cold_start: bool = False
+    job_type: Callable[..., Any],
+    out: Path,
+    models: dict[str, str],
+    seeds: Iterable[int],
+    scenarios: Iterable[str] = tuple(LEAD_SCENARIOS),
+    cold_start: bool = False,
+    vehicles: Iterable[str] = ("ice", "ev"),
 ) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
@@ -57,8 +63,9 @@ def safety_jobs(
         seeds: episode seeds.
         scenarios: lead scenario names.
         cold_start: engage the models at frame 0, without the camera's pre-roll.
+        vehicles: whose ACC drives (the models drive their own vehicle).
     """
-    drivers = [("acc", "ice", None), ("acc", "ev", None)] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
+    drivers = [("acc", vehicle, None) for vehicle in vehicles] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
                  str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start)  # fmt: skip
@@ -107,7 +114,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     return "\n".join(lines) + "\n", rows
 
 
-def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False) -> str:
+def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False, vehicles: Iterable[str] = ("ice", "ev")) -> str:
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
@@ -116,7 +123,7 @@ def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, co
     from vacc.evaluate import Job, drive_jobs
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, cold_start=cold_start)
+    work = safety_jobs(Job, out, models, seeds, cold_start=cold_start, vehicles=vehicles)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)

@@ -51,6 +51,19 @@ def test_the_acc_passes_every_scenario(tmp_path):
     assert "FAIL" not in table
 
 
+def test_a_given_scenario_drives_only_that_vehicle(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    out = tmp_path / "safety"
+    result = subprocess.run(
+        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ev", "--seeds", "0", "--models", str(models), "--out", str(out), "--jobs", "2"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    table = (out / "safety.md").read_text()
+    assert "| acc (ev) | stopped | 1/1 |" in table and "acc (ice)" not in table
+
+
 def test_bad_seeds_fail_naming_the_option(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--seeds", "9-1", "--out", str(tmp_path / "o")],
