@@ -78,8 +78,8 @@ def drive_episode(
 
     A controller that reads a history (a ``history_steps`` attribute: the DDQN's frame
     stack) gets that many frames of pre-roll before it engages, as a camera that was on
-    before the driver engaged the ACC (:data:`protocol.scenarios.MAX_PREROLL`); it sees
-    them through its ``warm(obs)`` and the host coasts at its initial speed meanwhile.
+    before the driver engaged the ACC (at most :data:`protocol.scenarios.MAX_PREROLL`); it
+    sees them through its ``warm(obs)`` and the host coasts at its initial speed meanwhile.
     ``preroll`` overrides that (0: a cold start, where the first frame stands for the
     whole stack). Frame 0 is the same state either way; the log and the summary start there.
 
