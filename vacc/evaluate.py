@@ -29,7 +29,7 @@ from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from energy.metrics import Metrics
-from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
+from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TEST_TRAJECTORIES
 from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
@@ -444,7 +444,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
 
         # Both vehicles, unless --scenario was given: then that one's ACC and models only.
         given = click.get_current_context().get_parameter_source("scenario") == click.core.ParameterSource.COMMANDLINE
-        vehicles = (scenario,) if given else ("ice", "ev")
+        vehicles = (scenario,) if given else SCENARIOS
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in vehicles}
         click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")

@@ -18,7 +18,7 @@ import click
 import numpy as np
 
 from protocol.constants import MIN_GAP
-from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS
+from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
 
 __all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
 
@@ -52,7 +52,7 @@ def safety_jobs(
     seeds: Iterable[int],
     scenarios: Iterable[str] = tuple(LEAD_SCENARIOS),
     cold_start: bool = False,
-    vehicles: Iterable[str] = ("ice", "ev"),
+    vehicles: Iterable[str] = SCENARIOS,
 ) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
@@ -114,7 +114,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     return "\n".join(lines) + "\n", rows
 
 
-def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False, vehicles: Iterable[str] = ("ice", "ev")) -> str:
+def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False, vehicles: Iterable[str] = SCENARIOS) -> str:
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
