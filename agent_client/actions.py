@@ -39,9 +39,10 @@ import numpy as np
 from protocol.constants import A_MAX, A_MIN, FORCE_LEVELS, FORCES, N_ACTIONS
 from sim_server.vehicle import accel_of_force
 
-__all__ = ["ACTION_TYPES", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
+__all__ = ["ACTION_TYPES", "RAMP_ACTIONS", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
 
 ACTION_TYPES = ("levels", "steps", "ramp", "ramp-fine")
+RAMP_ACTIONS = ("ramp", "ramp-fine")  # the types whose actions are target levels of a rate-limited force
 # Force increments of the "steps" type: fine near zero, one hard brake (a stopped car
 # ahead needs -4 m/s^2 within about 0.3 s), and no hard throttle, which comfort never needs.
 FORCE_STEPS = (-0.5, -0.1, -0.02, 0.0, 0.02, 0.1)
@@ -150,16 +151,24 @@ class ForceRamp(HeldForce):
     name, n = "ramp", N_ACTIONS
     levels: Sequence[float] = FORCE_LEVELS
 
-    def _next(self, action: int) -> float:
-        """The force ``action`` gives from the one held now (rounded to 0.01, so that a long
-        run of ramps never drifts off the levels)."""
-        target = float(self.levels[action])
-        if action == EMERGENCY_LEVEL:
-            return target
+    def _toward(self, target: float) -> float:
+        """The force one ramp step gives toward ``target`` from the one held now (rounded to
+        0.01, so that a long run of ramps never drifts off the levels)."""
         return round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+
+    def _next(self, action: int) -> float:
+        """The force ``action`` gives from the one held now."""
+        target = float(self.levels[action])
+        return target if action == EMERGENCY_LEVEL else self._toward(target)
 
     def force(self, action: int) -> float:
         self.u = self._next(action)
+        return self.u
+
+    def force_toward(self, target: float) -> float:
+        """Ramp the held force toward a target between the levels (the mean decision,
+        :mod:`agent_client.rl.policy`); never an emergency brake, which only its level gives."""
+        self.u = self._toward(float(np.clip(target, -1.0, 1.0)))
         return self.u
 
     def imitate(self, u: float, hard_brake: float = 0.0) -> int:

@@ -259,7 +259,22 @@ class VisionACCEnv(gym.Env):
     def step(self, action):
         if not self.action_space.contains(action):
             raise ValueError(f"action {action!r} is not in {self.action_space}")
-        u = self.actions.force(int(action))
+        return self._advance(self.actions.force(int(action)))
+
+    def step_toward(self, target: float):
+        """:meth:`step` with a ramp toward a force between the target levels instead of an
+        action (the mean decision, :class:`agent_client.rl.network.Policy`); the same returns.
+
+        Raises:
+            ValueError: an action type without a ramp.
+        """
+        force_toward = getattr(self.actions, "force_toward", None)
+        if force_toward is None:
+            raise ValueError(f"action type {self.actions.name!r} has no ramp to move toward a target")
+        return self._advance(force_toward(float(target)))
+
+    def _advance(self, u: float):
+        """Apply the force ``u`` for one control step; the Gymnasium step's returns."""
         obs = self.session.step(u)
         a = float(obs["accel"])
         reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev, v_lead=float(obs["v_lead"]))

@@ -11,7 +11,7 @@ from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import QNetwork, greedy_action
+from agent_client.rl.network import Decision, Policy, QNetwork
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
@@ -22,7 +22,8 @@ class DDQNController:
 
     Keeps its own frame/speed stack with the env's :class:`FrameStacker`, so it sees
     exactly what the network saw in training, and decides through
-    :func:`~agent_client.rl.network.greedy_action`, the trainer's own inference path.
+    :class:`~agent_client.rl.network.Policy` with the checkpoint's decision rule, the
+    trainer's own inference path.
     Uses the camera image and the host speed of the observation only, and, for the
     held-force action types ("steps", "ramp", "ramp-fine"), its own last force and the set speed the driver chose.
 
@@ -35,6 +36,7 @@ class DDQNController:
 
     def __init__(self, q: QNetwork, cfg: Config):
         self.q, self.cfg = q.eval(), cfg
+        self.policy = Policy.of(self.q, cfg)
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
         self.actions = make_action_type(cfg.action)
 
@@ -70,10 +72,11 @@ class DDQNController:
             controls = self.actions.controls(float(obs["set_speed"]))
         return self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
 
-    def act(self, stacked: dict[str, np.ndarray]) -> int:
-        """Greedy action index for a stacked observation (frames, speeds and, if observed, controls)."""
-        return greedy_action(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls"))
+    def act(self, stacked: dict[str, np.ndarray]) -> Decision:
+        """The decision for a stacked observation (frames, speeds and, if observed, controls)."""
+        return self.policy(stacked)
 
     def __call__(self, obs: dict[str, Any]) -> float:
         """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
-        return self.actions.force(self.act(self.warm(obs)))
+        d = self.act(self.warm(obs))
+        return self.actions.force(d.action) if d.target is None else self.actions.force_toward(d.target)  # type: ignore[attr-defined]

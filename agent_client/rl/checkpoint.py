@@ -23,6 +23,7 @@ the previous checkpoint is untouched. An interrupted one (a second Ctrl-C) remov
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import hashlib
 import os
@@ -47,6 +48,7 @@ __all__ = [
     "load_weights",
     "checkpoint_config",
     "digest",
+    "with_decision",
 ]
 
 CHECKPOINT_FORMAT = "vacc-ddqn"
@@ -239,10 +241,59 @@ def upgrade(path: str | Path) -> bool:
     return True
 
 
-if __name__ == "__main__":  # python -m agent_client.rl.checkpoint upgrade PATH...
+def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: float | None = None) -> Config:
+    """Write a copy of the policy ``src`` to the new file ``dst`` with another decision rule
+    (``Config.decision``, and ``decision_temperature`` if given); weights unchanged.
+
+    Returns:
+        The copy's config.
+
+    Raises:
+        InputFileError: ``src`` is not a readable checkpoint, the rule does not fit it, or
+            ``dst`` exists (nothing saved is overwritten).
+        CheckpointWriteError: the write failed.
+    """
+    ckpt = read_checkpoint(src)
+    cfg = checkpoint_config(ckpt, src)
+    if Path(dst).exists():
+        raise InputFileError(f"{dst}: exists; give a new file for the copy")
+    temperature = cfg.decision_temperature if temperature is None else temperature
+    try:
+        cfg = dataclasses.replace(cfg, decision=decision, decision_temperature=temperature)
+    except ValueError as exc:
+        raise InputFileError(f"{src}: {exc}") from None
+    ckpt["config"] = config_dict(cfg)
+    atomic_save({k: v for k, v in ckpt.items() if k != "sha256"}, Path(dst))
+    return cfg
+
+
+def _main(argv: list[str]) -> None:
+    import argparse
+
+    from agent_client.rl.config import DECISIONS
+
+    ap = argparse.ArgumentParser(prog="python -m agent_client.rl.checkpoint", description="Checkpoint maintenance.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    up = sub.add_parser("upgrade", help="Rewrite version-1 checkpoints in this layout (weights unchanged).")
+    up.add_argument("paths", nargs="+", metavar="CHECKPOINT.pt")
+    dec = sub.add_parser("decide", help="Copy a policy with another decision rule (Config.decision; weights unchanged).")
+    dec.add_argument("src", metavar="SRC.pt")
+    dec.add_argument("dst", metavar="DST.pt", help="a new file")
+    dec.add_argument("--decision", required=True, choices=DECISIONS)
+    dec.add_argument("--temperature", type=float, default=None, help="the mean decision's softmax temperature (default: the checkpoint's)")
+    a = ap.parse_args(argv)
+    try:
+        if a.command == "upgrade":
+            for name in a.paths:
+                print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
+        else:
+            cfg = with_decision(a.src, a.dst, a.decision, a.temperature)
+            print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}")
+    except ClientError as exc:
+        ap.exit(2, f"{ap.prog}: error: {exc}\n")
+
+
+if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide} ...
     import sys
 
-    if sys.argv[1:2] != ["upgrade"] or len(sys.argv) < 3:
-        sys.exit("usage: python -m agent_client.rl.checkpoint upgrade CHECKPOINT.pt...")
-    for name in sys.argv[2:]:
-        print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
+    _main(sys.argv[1:])

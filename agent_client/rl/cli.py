@@ -26,7 +26,7 @@ from agent_client.actions import ACTION_TYPES
 from agent_client.errors import ClientError, InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
-from agent_client.rl.config import SCHEDULES, TEACHERS, Config, ConfigError, config_from
+from agent_client.rl.config import DECISIONS, SCHEDULES, TEACHERS, Config, ConfigError, config_from
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]
@@ -35,7 +35,7 @@ OPTION_NAMES = {"total_steps": "steps", "torch_threads": "threads"}  # names kep
 REQUIRED = ("reward", "total_steps")
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
-    "teacher": TEACHERS,
+    "teacher": TEACHERS, "decision": DECISIONS,
 }  # fmt: skip
 
 

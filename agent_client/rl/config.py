@@ -10,7 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from agent_client.actions import ACTION_TYPES
+from agent_client.actions import ACTION_TYPES, RAMP_ACTIONS
 from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
@@ -23,9 +23,10 @@ from protocol.scenarios import (
     TEST_TRAJECTORIES,
 )
 
-__all__ = ["Config", "ConfigError", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
+__all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
 
 SCHEDULES = ("parallel", "serial")
+DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
 TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "eco", "eco-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
@@ -157,6 +158,16 @@ class Config:
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
+    decision: str = "argmax"
+    """How the outputs become the force, in training, evaluation and vacc drive alike (the
+    checkpoint records it): "argmax", the action with the largest output; "mean", for a
+    teacher run with a ramp action: the held force ramps toward the mean of the target
+    levels weighted by the softmax of the outputs, so a student torn between two levels
+    asks for the force between them instead of flipping (the full brake still acts at
+    once where it is the argmax)."""
+    decision_temperature: float = 2.0
+    """(decision mean) the softmax's temperature over the outputs: higher averages over
+    more levels."""
     torch_threads: int = 2
     """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
     machine the weights are bit-identical to one thread's)."""
@@ -195,6 +206,12 @@ class Config:
             raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
+        if self.decision not in DECISIONS:
+            raise bad("decision", f"{self.decision!r} is not one of {DECISIONS}")
+        if self.decision == "mean" and (self.teacher == "none" or self.action not in RAMP_ACTIONS):
+            raise bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
+        if not self.decision_temperature > 0.0:
+            raise bad("decision_temperature", "must be > 0")
         if self.preroll and self.servers != 1:
             raise bad("preroll", "a pre-roll needs servers=1 (the K-stream trainer starts its episodes cold)")
         if self.action != "levels" and self.servers != 1:

@@ -43,7 +43,7 @@ def eval_episode(name: str) -> tuple[str, int]:
     raise ValueError(f"evaluation trajectory {name!r} is not one of {EVAL_NAMES_HELP} (e.g. random:101)")
 
 
-def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str, Any]]:
+def evaluate(policy: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str, Any]]:
     """Greedy episodes; gap RMSE against 55 m and collisions.
 
     With several envs (each with its own server), the episodes run on as many threads:
@@ -51,7 +51,7 @@ def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str,
     alone, so the results are the same as one after the other.
 
     Args:
-        q: the Q-network.
+        policy: the network and its decision rule (:class:`~agent_client.rl.network.Policy`).
         envs: a :class:`VisionACCEnv` of the scenario, or a list of them.
         trajectories: names for :func:`eval_episode`, e.g. ("test-1", ..., "test-4")
             or ("random:101", "random:102").
@@ -62,7 +62,7 @@ def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str,
     """
     pool = list(envs) if isinstance(envs, (list, tuple)) else [envs]
     if len(pool) == 1:
-        return [_episode(q, pool[0], t) for t in trajectories]
+        return [_episode(policy, pool[0], t) for t in trajectories]
     free: queue.Queue[Any] = queue.Queue()
     for env in pool:
         free.put(env)
@@ -70,7 +70,7 @@ def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str,
     def run(trajectory: str) -> dict[str, Any]:
         env = free.get()
         try:
-            return _episode(q, env, trajectory)
+            return _episode(policy, env, trajectory)
         finally:
             free.put(env)
 
@@ -78,16 +78,14 @@ def evaluate(q: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict[str,
         return list(ex.map(run, trajectories))
 
 
-def _episode(q: Any, env: Any, trajectory: str) -> dict[str, Any]:
+def _episode(policy: Any, env: Any, trajectory: str) -> dict[str, Any]:
     """One greedy episode of ``trajectory`` in ``env``."""
-    from agent_client.rl.network import greedy_action
-
     server_trajectory, seed = eval_episode(trajectory)
     obs, info = env.reset(options={"seed": seed, "trajectory": server_trajectory})
     gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0
     done = False
     while not done:
-        obs, _, terminated, truncated, info = env.step(greedy_action(q, obs["frames"], obs["speeds"], obs.get("controls")))
+        obs, _, terminated, truncated, info = policy(obs).step(env)
         gaps.append(info["gap"])
         collision = collision or bool(info["collision"])
         steps += 1

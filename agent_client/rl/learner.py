@@ -41,7 +41,7 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import QNetwork, greedy_action, transfer_weights
+from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from protocol.constants import DESIRED_GAP
@@ -197,6 +197,7 @@ class Learner:
         self.target = self._network()
         self.target.load_state_dict(self.q.state_dict())
         self.acting = self._network().eval() if self.parallel else self.q
+        self.acting_policy = Policy.of(self.acting, cfg)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
         self.teacher = make_teacher(cfg.teacher)
@@ -283,9 +284,9 @@ class Learner:
 
     # ------------------------------------------------------------------- acting
 
-    def act(self, obs: dict[str, np.ndarray]) -> int:
-        """The greedy action of the acting network (one update behind in the parallel schedule)."""
-        return greedy_action(self.acting, obs["frames"], obs["speeds"], obs.get("controls"))
+    def act(self, obs: dict[str, np.ndarray]) -> Decision:
+        """The acting network's decision (one update behind in the parallel schedule)."""
+        return self.acting_policy(obs)
 
     def flat_weights(self) -> np.ndarray:
         """The online network's parameters as one float32 vector on the CPU (2.8 MB)."""
@@ -396,7 +397,7 @@ class Learner:
                 action=cfg.action, eco_weights=cfg.eco_weights, preroll=cfg.preroll,
             ))  # fmt: skip
         self.q.eval()
-        self.last_eval = evaluate(self.q, self._eval_env, cfg.eval_trajectories)
+        self.last_eval = evaluate(Policy.of(self.q, cfg), self._eval_env, cfg.eval_trajectories)
         self.q.train()
         s = score(self.log, self.last_eval, step)
         if s < self.best_score:

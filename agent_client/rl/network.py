@@ -1,22 +1,27 @@
 """The Q-network (the paper's Figure 4, scaled to a 2-core CPU) and its one inference path.
 
-Every greedy decision, in training, in the trainer's evaluation and in ``vacc drive``,
-goes through :func:`greedy_action`, so they compute the same numbers to the last digit.
+Every decision, in training, in the trainer's evaluation and in ``vacc drive``, goes
+through :func:`greedy_action` or, with the mean decision, :class:`Policy`, so they
+compute the same numbers to the last digit.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import DECISIONS
 from protocol.constants import FORCES, N_ACTIONS
 
-__all__ = ["QNetwork", "FORCES", "N_ACTIONS", "greedy_action", "linear_schedule", "transfer_weights"]
+__all__ = ["QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights"]
+
 
 
 
@@ -105,6 +110,71 @@ def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls:
         c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
         qv = q(torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c)  # [1, A]
     return int(qv.argmax(dim=1).item())
+
+
+class Decision(NamedTuple):
+    """What a policy asks of its action type: the argmax ``action``, or, where ``target``
+    is not None, a ramp toward that force (the mean decision)."""
+
+    action: int
+    target: float | None = None
+
+    def step(self, env: Any) -> Any:
+        """Step a :class:`~agent_client.env.VisionACCEnv` with it; the env step's returns."""
+        return env.step(self.action) if self.target is None else env.step_toward(self.target)
+
+
+class Policy:
+    """A network and its decision rule (``Config.decision``).
+
+    "argmax": the action with the largest output (:func:`greedy_action`). "mean": for a
+    student trained on a teacher's labels by cross-entropy, whose outputs are logits over
+    the ramp's target levels, the ramp moves toward their softmax-weighted mean at
+    ``temperature``, leaving the full brake out; a student torn between two levels then
+    asks for the force between them instead of flipping from one to the other. Where the
+    full brake is the argmax, it acts at once, as ever.
+
+    Args:
+        q: the network.
+        decision: one of :data:`DECISIONS`.
+        levels: the action type's target levels (the mean decision).
+        temperature: the softmax's temperature (the mean decision).
+    """
+
+    def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0):
+        if decision not in DECISIONS:
+            raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
+        n_out = q.fc[-1].out_features
+        if decision == "mean" and len(levels) != n_out:
+            raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
+        self.q, self.decision, self.temperature = q, decision, float(temperature)
+        keep = torch.ones(len(levels), dtype=torch.bool)
+        if len(levels):
+            keep[EMERGENCY_LEVEL] = False
+        self._keep = keep
+        self._levels = torch.tensor(levels, dtype=torch.float64)[keep]
+
+    @classmethod
+    def of(cls, q: QNetwork, cfg: Any) -> Policy:
+        """The policy a :class:`~agent_client.rl.config.Config` describes."""
+        levels = getattr(make_action_type(cfg.action), "levels", ())
+        return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature)
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> Decision:
+        """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
+        if self.decision == "argmax":
+            return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
+        device = next(self.q.parameters()).device
+        controls = obs.get("controls")
+        with torch.inference_mode():
+            c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
+            out = self.q(torch.from_numpy(obs["frames"]).to(device)[None], torch.from_numpy(obs["speeds"]).to(device)[None], c)[0]
+        out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
+        action = int(out.argmax().item())
+        if action == EMERGENCY_LEVEL:
+            return Decision(action)
+        p = torch.softmax(out[self._keep] / self.temperature, dim=0)
+        return Decision(action, float(p @ self._levels))
 
 
 def transfer_weights(src: nn.Module, dst: nn.Module) -> list[str]:

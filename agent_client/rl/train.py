@@ -30,7 +30,7 @@ import numpy as np
 from agent_client.actions import make_action_type
 from agent_client.rl.config import Config
 from agent_client.rl.learner import STOP, Learner
-from agent_client.rl.network import linear_schedule
+from agent_client.rl.network import Decision, linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
 
@@ -151,8 +151,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             episode_return, episode_len, done = 0.0, 0, False
             while not done and state.global_step < cfg.total_steps and not STOP.is_set():
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
-                action, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
-                obs, reward, terminated, truncated, info = env.step(action)
+                decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
+                obs, reward, terminated, truncated, info = decision.step(env)
                 memory.add(stored, reward, terminated, truncated, obs)
                 episode_return += reward
                 episode_len += 1
@@ -183,8 +183,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     return time.perf_counter() - t_start
 
 
-def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[int, int]:
-    """The action to take and the one to store.
+def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int]:
+    """The decision to take and the action to store.
 
     Double DQN: ε-greedy, stored as taken. With a teacher (DAgger): the teacher's label is
     stored whoever drives; the teacher drives a share β of the steps, falling from 1 to 0
@@ -195,9 +195,9 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     if learner.teacher is not None:
         label = env.actions.imitate(learner.teacher(info), cfg.teacher_brake)  # privileged: reads the gap, never the network
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
-            return label, label
-    action = int(rng.integers(env.action_space.n)) if rng.random() < epsilon else learner.act(obs)
-    return action, (label if learner.teacher is not None else action)
+            return Decision(label), label
+    decision = Decision(int(rng.integers(env.action_space.n))) if rng.random() < epsilon else learner.act(obs)
+    return decision, (label if learner.teacher is not None else decision.action)
 
 
 def _evaluate_and_checkpoint(cfg: Config, learner: Learner, memory: ReplayMemory, state: LoopState, grid: _Schedule) -> None:

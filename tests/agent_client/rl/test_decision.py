@@ -1,0 +1,139 @@
+"""The decision rule (Config.decision): the argmax, or the ramp toward the softmax-weighted
+mean of a student's target levels; checkpoints record it, and every path decides alike."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from agent_client.actions import EMERGENCY_LEVEL, FINE_LEVELS, RAMP_RATE, FineRamp
+from agent_client.errors import InputFileError
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.checkpoint import load_policy, save_policy, with_decision
+from agent_client.rl.config import Config, ConfigError
+from agent_client.rl.network import Decision, Policy, QNetwork, greedy_action
+from agent_client.rl.train import train
+from vacc.cli import main
+
+STUDENT = {"reward": "eco", "action": "ramp-fine", "teacher": "acc"}
+
+
+def _fixed_outputs(logits: list[float]) -> QNetwork:
+    """A network whose outputs are ``logits`` whatever it sees."""
+    q = QNetwork(n_actions=len(logits), n_controls=2)
+    with torch.no_grad():
+        q.fc[-1].weight.zero_()
+        q.fc[-1].bias.copy_(torch.tensor(logits))
+    return q.eval()
+
+
+def _obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return {
+        "frames": rng.integers(0, 256, (8, FRAME_H, FRAME_W), dtype=np.uint8),
+        "speeds": np.full(8, 25.0, np.float32),
+        "controls": np.tile(np.array([0.0, 33.5], np.float32), (8, 1)),
+    }
+
+
+def test_the_ramp_moves_toward_a_target_between_levels_at_its_rate_and_never_jumps():
+    ramp = FineRamp()
+    assert ramp.force_toward(0.5) == pytest.approx(RAMP_RATE)
+    assert ramp.force_toward(0.05) == pytest.approx(0.05)  # within a step: reached
+    assert ramp.force_toward(0.013) == pytest.approx(0.01)  # reached, on the 0.01 grid
+    ramp.reset()
+    assert ramp.force_toward(-1.0) == pytest.approx(-RAMP_RATE)  # only the full brake's level acts at once
+    ramp.u = 0.99
+    assert ramp.force_toward(7.0) == 1.0  # clipped to the force range
+
+
+def test_the_mean_decision_is_the_softmax_weighted_level_without_the_full_brake():
+    rng = np.random.default_rng(0)
+    logits = [float(np.float32(x)) for x in rng.normal(0.0, 2.0, len(FINE_LEVELS))]  # the network's float32
+    logits[12] = 9.0  # the argmax, not the full brake
+    q = _fixed_outputs(logits)
+    for temperature in (0.5, 1.0, 2.0, 5.0):
+        d = Policy(q, "mean", FINE_LEVELS, temperature)(_obs(rng))
+        z = np.array(logits[1:]) / temperature
+        p = np.exp(z - z.max()) / np.exp(z - z.max()).sum()
+        assert d.action == 12
+        assert d.target == pytest.approx(float(p @ np.array(FINE_LEVELS[1:])), abs=1e-12)
+    cold, hot = (Policy(q, "mean", FINE_LEVELS, t)(_obs(rng)).target for t in (0.01, 1e6))
+    assert cold == pytest.approx(FINE_LEVELS[12])  # a cold softmax is the argmax's level
+    assert hot == pytest.approx(float(np.mean(FINE_LEVELS[1:])))  # a hot one averages them all
+
+
+def test_the_full_brake_acts_at_once_where_it_is_the_argmax():
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[EMERGENCY_LEVEL] = 3.0
+    assert Policy(_fixed_outputs(logits), "mean", FINE_LEVELS, 2.0)(_obs(np.random.default_rng(1))) == Decision(EMERGENCY_LEVEL)
+
+
+def test_the_argmax_decision_is_the_greedy_action():
+    torch.manual_seed(0)
+    q, rng = QNetwork(n_actions=len(FINE_LEVELS), n_controls=2).eval(), np.random.default_rng(2)
+    for _ in range(5):
+        obs = _obs(rng)
+        assert Policy(q)(obs) == Decision(greedy_action(q, obs["frames"], obs["speeds"], obs["controls"]))
+
+
+def test_config_refuses_a_mean_decision_without_a_teachers_ramp_targets():
+    for bad in ({"teacher": "none"}, {"action": "levels"}, {"action": "steps"}):
+        with pytest.raises(ConfigError, match="mean") as e:
+            Config(**{**STUDENT, **bad, "decision": "mean"})
+        assert e.value.field == "decision"
+    with pytest.raises(ConfigError, match="> 0") as e:
+        Config(**STUDENT, decision="mean", decision_temperature=0.0)
+    assert e.value.field == "decision_temperature"
+    result = CliRunner().invoke(main, ["train", "--reward", "eco", "--steps", "10", "--decision", "mean", "--out", "unused"])
+    assert result.exit_code == 2 and "--decision" in result.output
+
+
+def test_a_policy_copied_with_another_decision_keeps_its_weights_and_the_original(tmp_path):
+    torch.manual_seed(0)
+    cfg = Config(**STUDENT)
+    q = QNetwork.of(cfg)
+    src, dst = tmp_path / "student.pt", tmp_path / "mean.pt"
+    save_policy(q, cfg, src)
+    before = src.read_bytes()
+    assert with_decision(src, dst, "mean", 3.0).decision_temperature == 3.0
+    assert src.read_bytes() == before
+    copy, copy_cfg = load_policy(dst)
+    assert (copy_cfg.decision, copy_cfg.decision_temperature) == ("mean", 3.0)
+    for key, value in q.state_dict().items():
+        torch.testing.assert_close(copy.state_dict()[key], value, rtol=0, atol=0)
+    with pytest.raises(InputFileError, match="exists"):
+        with_decision(src, dst, "argmax")
+    assert load_policy(dst)[1].decision == "mean"  # not overwritten
+    dqn = tmp_path / "dqn.pt"
+    save_policy(QNetwork(), Config(), dqn)
+    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "decide", str(dqn), str(tmp_path / "x.pt"), "--decision", "mean"]
+    done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "needs a teacher" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_a_mean_decision_run_trains_evaluates_and_drives_smoothly(tmp_path):
+    cfg = Config(
+        **STUDENT, decision="mean", teacher_steps=40, train_trajectories=("random",), total_steps=80, learning_starts=20,
+        train_every=4, batch_size=8, buffer_size=300, start_e=0.0, end_e=0.0, episode_seconds=3.0, checkpoint_every=40,
+        eval_every=40, eval_trajectories=("random:1",), eval_seconds=2.0, log_every=20,
+    )  # fmt: skip
+    summary = train(cfg, tmp_path / "run", progress=False)
+    assert summary["last_eval"][0]["steps"] > 0
+    assert load_policy(tmp_path / "run" / "best.pt")[1].decision == "mean"
+    log = tmp_path / "drive.csv"
+    result = CliRunner().invoke(
+        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "run" / "best.pt"), "--trajectory", "random",
+               "--duration", "4", "--log", str(log)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    forces = np.array([float(r["force"]) for r in csv.DictReader(log.open())])
+    steps = np.abs(np.diff(forces))
+    # a ramp (or the full brake at once); off the levels' grid where the mean lies between them
+    assert ((steps <= RAMP_RATE + 1e-9) | (forces[1:] == -1.0)).all()
