@@ -8,6 +8,7 @@ Depends on numpy only and imports no other package of the project.
   with coefficients fitted to VT-CPEM (not the UCR values).
 * :mod:`energy.metrics`: :func:`evaluate_run`, every metric of a run log.
 * :mod:`energy.comfort`: the ISO 15622 window tests and acceleration sign changes.
+* :mod:`energy.frontier`: the least eq. 6 energy a follower with preview reaches at a gap error.
 * :mod:`energy.runlog`, :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
 """
 

@@ -23,8 +23,6 @@ from protocol.constants import FORCES, N_ACTIONS
 __all__ = ["QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights"]
 
 
-
-
 class QNetwork(nn.Module):
     """Convolutions over the frame stack (frames as channels); the host-speed sequence
     (and, for the "steps" action type, the controls sequence) joins at the fully
