@@ -167,7 +167,8 @@ class Config:
     teacher run with a ramp action: the held force ramps toward the mean of the target
     levels weighted by the softmax of the outputs, so a student torn between two levels
     asks for the force between them instead of flipping (the full brake still acts at
-    once where it is the argmax)."""
+    once where it is the argmax, and where the argmax brakes firmly the target brakes no
+    softer)."""
     decision_temperature: float = 2.0
     """(decision mean) the softmax's temperature over the outputs: higher averages over
     more levels."""

@@ -110,6 +110,11 @@ def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls:
     return int(qv.argmax(dim=1).item())
 
 
+# (mean decision) where the argmax level brakes at least this hard (force; 0.3 is 1.65 m/s^2),
+# the target brakes no softer than it: averaging must not delay a real brake.
+FIRM_BRAKE = 0.3
+
+
 class Decision(NamedTuple):
     """What a policy asks of its action type: the argmax ``action``, or, where ``target``
     is not None, a ramp toward that force (the mean decision)."""
@@ -130,7 +135,8 @@ class Policy:
     the ramp's target levels, the ramp moves toward their softmax-weighted mean at
     ``temperature``, leaving the full brake out; a student torn between two levels then
     asks for the force between them instead of flipping from one to the other. Where the
-    full brake is the argmax, it acts at once, as ever.
+    full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
+    :data:`FIRM_BRAKE`, the target brakes no softer than it.
 
     Args:
         q: the network.
@@ -150,6 +156,7 @@ class Policy:
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
         self._keep = keep
+        self._all_levels = tuple(float(x) for x in levels)
         self._levels = torch.tensor(levels, dtype=torch.float64)[keep]
 
     @classmethod
@@ -172,7 +179,10 @@ class Policy:
         if action == EMERGENCY_LEVEL:
             return Decision(action)
         p = torch.softmax(out[self._keep] / self.temperature, dim=0)
-        return Decision(action, float(p @ self._levels))
+        target = float(p @ self._levels)
+        if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder
+            target = min(target, self._all_levels[action])
+        return Decision(action, target)
 
 
 def transfer_weights(src: nn.Module, dst: nn.Module) -> list[str]:

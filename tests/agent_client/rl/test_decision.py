@@ -17,7 +17,7 @@ from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.checkpoint import load_policy, save_policy, with_decision
 from agent_client.rl.config import Config, ConfigError
-from agent_client.rl.network import Decision, Policy, QNetwork, greedy_action
+from agent_client.rl.network import FIRM_BRAKE, Decision, Policy, QNetwork, greedy_action
 from agent_client.rl.train import train
 from vacc.cli import main
 
@@ -72,6 +72,21 @@ def test_the_full_brake_acts_at_once_where_it_is_the_argmax():
     logits = [0.0] * len(FINE_LEVELS)
     logits[EMERGENCY_LEVEL] = 3.0
     assert Policy(_fixed_outputs(logits), "mean", FINE_LEVELS, 2.0)(_obs(np.random.default_rng(1))) == Decision(EMERGENCY_LEVEL)
+
+
+def test_where_the_argmax_brakes_firmly_the_mean_brakes_no_softer():
+    rng = np.random.default_rng(3)
+    firm = next(a for a, u in enumerate(FINE_LEVELS) if a != EMERGENCY_LEVEL and u <= -FIRM_BRAKE)
+    soft = FINE_LEVELS.index(-0.14)
+    for argmax in (firm, soft):
+        logits = [0.0] * len(FINE_LEVELS)
+        logits[argmax] = 2.0  # the rest pulls the mean toward the middle levels
+        d = Policy(_fixed_outputs(logits), "mean", FINE_LEVELS, 2.0)(_obs(rng))
+        z = np.array(logits[1:]) / 2.0
+        mean = float(np.exp(z) @ np.array(FINE_LEVELS[1:]) / np.exp(z).sum())
+        assert mean > FINE_LEVELS[argmax]  # the average alone would brake softer
+        expected = FINE_LEVELS[argmax] if argmax == firm else mean
+        assert d == Decision(argmax, pytest.approx(expected, abs=1e-12))
 
 
 def test_the_argmax_decision_is_the_greedy_action():
