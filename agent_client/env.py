@@ -69,7 +69,9 @@ class VisionACCEnv(gym.Env):
     Table 1 of the paper (:mod:`agent_client.rewards`): ``reward="gap"`` or
     ``"force"``, normalised to [-1, 1]; or ``"eco"``: the gap term minus the host's
     instantaneous energy, its jerk and its speed difference to the lead, weighted by
-    ``eco_weights`` (beyond the paper).
+    ``eco_weights`` (beyond the paper). ``crash_reward``: a collision step's reward
+    instead of the reward's own value at contact (None: unchanged; see
+    :attr:`agent_client.rl.config.Config.crash_reward`).
 
     ## Starting state
     Table 2 of the paper for the scenario (or the lead scenario's own ranges,
@@ -149,7 +151,10 @@ class VisionACCEnv(gym.Env):
         action: str = "levels",
         eco_weights: tuple[float, ...] = ECO_WEIGHTS,
         preroll: bool = False,
+        crash_reward: float | None = None,
     ):
+        if crash_reward is not None and not np.isfinite(crash_reward):
+            raise ValueError(f"crash_reward must be finite, got {crash_reward}")
         if action not in ACTION_TYPES:
             raise ValueError(f"action {action!r} is not one of {ACTION_TYPES}")
         check_trajectory(trajectory)
@@ -176,6 +181,7 @@ class VisionACCEnv(gym.Env):
         self.scenario, self.trajectory = scenario, trajectory
         self.set_speed = set_speed
         self.reward_fn = make_reward(reward, scenario, eco_weights)
+        self.crash_reward = crash_reward
         self._a_prev = 0.0  # [m/s^2] the host's acceleration over the previous step
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self.episode_seconds = episode_seconds
@@ -278,6 +284,8 @@ class VisionACCEnv(gym.Env):
         obs = self.session.step(u)
         a = float(obs["accel"])
         reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev, v_lead=float(obs["v_lead"]))
+        if obs["collision"] and self.crash_reward is not None:
+            reward = self.crash_reward
         self._a_prev = a
         observation, info = self._observe(obs), self._info(obs)
         self._after(info)

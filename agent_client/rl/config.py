@@ -35,6 +35,7 @@ TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "a
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
+CRASH_REWARD_RANGE = (-10.0, 0.0)  # the floor of the normalised rewards is -1; a crash may cost more, never gain
 LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "teacher_brake": 0.0, "eco_weights": (1.0, 0.5, 0.25, 0.0)}
 
 
@@ -109,6 +110,13 @@ class Config:
     """Value a termination (collision, gap > 300 m) as its reward forever, r / (1 - γ),
     instead of 0: with Table 1's rewards, 0 would make crashing or dropping back past
     300 m look better than a long stretch of small negative rewards."""
+    crash_reward: float | None = None
+    """The reward of a collision (a termination, so with absorbing_terminal valued forever),
+    in [-10, 0]: None, the reward's own value at contact. Table 1's force reward gives contact
+    -10 plus the force term, so coasting into a car scores 0 for ever, better than braking
+    hard (|u| > 0.3 earns no force term) and stopping short; -1, the floor of every reward,
+    makes a crash the worst outcome. Its gap reward values a touch (-1) hardly below standing
+    1 m short (-0.97); below -1 a touch costs clearly more than the near miss."""
     frame_stack: int = 8
     """Frames (and host speeds) per observation (paper: 8)."""
     stack_stride: int = 2
@@ -200,6 +208,8 @@ class Config:
             raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
         if (why := check_eco_weights(tuple(self.eco_weights))) is not None:
             raise bad("eco_weights", why)
+        if self.crash_reward is not None and not CRASH_REWARD_RANGE[0] <= self.crash_reward <= CRASH_REWARD_RANGE[1]:
+            raise bad("crash_reward", f"must be in [{CRASH_REWARD_RANGE[0]:g}, {CRASH_REWARD_RANGE[1]:g}], got {self.crash_reward}")
         if self.teacher not in TEACHERS:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
         if self.teacher != "none" and self.servers != 1:

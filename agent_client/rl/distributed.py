@@ -189,7 +189,7 @@ class StreamActor:
         self.env = VisionACCEnv(
             scenario=cfg.scenario, trajectory="random", reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom, set_speed=cfg.set_speed,
-            server_args=("--session-timeout", str(SESSION_TIMEOUT), *server_args), eco_weights=cfg.eco_weights,
+            server_args=("--session-timeout", str(SESSION_TIMEOUT), *server_args), eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward,
         )  # fmt: skip
         self.q = QNetwork.of(cfg).eval()
         self.version = -1

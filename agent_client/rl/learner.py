@@ -404,7 +404,7 @@ class Learner:
                 scenario=cfg.scenario, trajectory=eval_episode(cfg.eval_trajectories[0])[0], reward=cfg.reward,
                 frame_stack=cfg.frame_stack, stack_stride=cfg.stack_stride,
                 episode_seconds=cfg.eval_seconds, server_args=self.server_args, zoom=cfg.zoom, set_speed=cfg.set_speed,
-                action=cfg.action, eco_weights=cfg.eco_weights, preroll=cfg.preroll,
+                action=cfg.action, eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward, preroll=cfg.preroll,
             ))  # fmt: skip
         self.q.eval()
         self.last_eval = evaluate(Policy.of(self.q, cfg), self._eval_env, cfg.eval_trajectories)

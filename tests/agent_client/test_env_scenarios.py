@@ -75,3 +75,29 @@ def test_a_preroll_env_starts_with_real_frames_and_the_same_frame_0(server):
     for k, frame in enumerate(warm["frames"][:-1]):
         assert np.array_equal(frame, warm_info["preroll"][2 * k]["frames"][-1])
     assert all(f["controls"][-1][0] == 0.0 for f in warm_info["preroll"])  # coasting: no force held
+
+
+def _crash_into_a_stopped_car(server, **kwargs):
+    """Coast (u = 0, the force term's peak) into a standing car; the last step's returns."""
+    env = VisionACCEnv(server, trajectory="stopped", reward="force", episode_seconds=60.0, **kwargs)
+    try:
+        env.reset(options={"seed": 0, "host_speed": 15.0, "gap": 6.0})
+        for _ in range(100):
+            _, reward, terminated, truncated, info = env.step(10)  # action 10: u = 0
+            if terminated or truncated:
+                return reward, terminated, info
+        raise AssertionError("no collision in 10 s at 15 m/s from 6 m")
+    finally:
+        env.close()
+
+
+def test_crash_reward_replaces_the_rewards_value_at_contact(server):
+    from agent_client.rewards import force_reward
+
+    reward, terminated, info = _crash_into_a_stopped_car(server)
+    assert terminated and info["collision"]
+    assert reward == force_reward(info["gap"], 0.0) == pytest.approx(0.0)  # Table 1 at contact: (-10 + 10) / 20
+    reward, terminated, info = _crash_into_a_stopped_car(server, crash_reward=-1.0)
+    assert terminated and info["collision"] and reward == -1.0
+    with pytest.raises(ValueError, match="crash_reward must be finite"):
+        VisionACCEnv(("127.0.0.1", 9), crash_reward=float("nan"))

@@ -481,6 +481,8 @@ def test_config_rejects_bad_values():
         Config(preroll=True, servers=2)
     with pytest.raises(ValueError, match="scenario"):
         Config(scenario="moon")
+    with pytest.raises(ValueError, match=r"crash_reward must be in \[-10, 0\], got 0.5"):
+        Config(crash_reward=0.5)
 
 
 def test_tensorboard_gets_the_config_and_the_first_frames(tmp_path):
