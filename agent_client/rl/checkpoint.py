@@ -267,6 +267,26 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     return cfg
 
 
+def export_policy(src: str | Path, dst: str | Path) -> int:
+    """Write the weights and settings of the checkpoint ``src`` (a training run's ``latest.pt``,
+    or a policy) as a policy-only file ``dst``, as the trainer writes ``best.pt``.
+
+    Returns:
+        The step ``src`` was taken at (0 when it does not say).
+
+    Raises:
+        InputFileError: ``src`` is not a readable checkpoint, or ``dst`` exists.
+        CheckpointWriteError: the write failed.
+    """
+    if Path(dst).exists():
+        raise InputFileError(f"{dst}: exists; give a new file for the policy")
+    ckpt = read_checkpoint(src)
+    step = int(ckpt.get("state", {}).get("global_step", ckpt.get("extra", {}).get("step", 0)))
+    q, cfg = load_policy(src)
+    save_policy(q, cfg, dst, {"step": step, "from": str(src)})
+    return step
+
+
 def _main(argv: list[str]) -> None:
     import argparse
 
@@ -281,11 +301,16 @@ def _main(argv: list[str]) -> None:
     dec.add_argument("dst", metavar="DST.pt", help="a new file")
     dec.add_argument("--decision", required=True, choices=DECISIONS)
     dec.add_argument("--temperature", type=float, default=None, help="the mean decision's softmax temperature (default: the checkpoint's)")
+    pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
+    pol.add_argument("src", metavar="SRC.pt")
+    pol.add_argument("dst", metavar="DST.pt", help="a new file")
     a = ap.parse_args(argv)
     try:
         if a.command == "upgrade":
             for name in a.paths:
                 print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
+        elif a.command == "policy":
+            print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
             cfg = with_decision(a.src, a.dst, a.decision, a.temperature)
             print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}")
@@ -293,7 +318,7 @@ def _main(argv: list[str]) -> None:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
 
 
-if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide} ...
+if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy} ...
     import sys
 
     _main(sys.argv[1:])

@@ -33,6 +33,7 @@ __all__ = ["train", "config_options"]
 
 OPTION_NAMES = {"total_steps": "steps", "torch_threads": "threads"}  # names kept from earlier releases
 REQUIRED = ("reward", "total_steps")
+ZERO_IS_NONE = ("episode_seconds", "eval_seconds")  # lengths where 0 means none; --crash-reward -1 stays -1
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
     "teacher": TEACHERS, "decision": DECISIONS,
@@ -106,8 +107,8 @@ def make_config(values: dict[str, Any]) -> Config:
                     v = tuple(float(t) for t in v)
                 except ValueError:
                     raise click.BadParameter(f"{values[f.name]!r} is not a comma-separated list of numbers", param_hint=option_name(f.name)) from None
-        elif str(f.type) == "float | None" and v is not None and v <= 0:
-            v = None  # 0: "none", e.g. whole trajectories
+        elif f.name in ZERO_IS_NONE and v is not None and v <= 0:
+            v = None  # 0: the whole trajectory
         kw[f.name] = v
     for name in ("eval_trajectories", "train_trajectories"):
         if not kw[name]:

@@ -123,7 +123,7 @@ def trained_run(tmp_path_factory):
         "train", "--reward", "force", "--scenario", "ice", "--steps", "200", "--out", str(out),
         "--learning-starts", "50", "--episode-seconds", "5", "--buffer-size", "1000",
         "--exploration-steps", "100", "--eval-every", "100", "--eval-seconds", "1",
-        "--eval-trajectories", "test-1", "--quiet", "--seed", "3", "--log-every", "20",
+        "--eval-trajectories", "test-1", "--quiet", "--seed", "3", "--log-every", "20", "--crash-reward", "-1",
     ]  # fmt: skip
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
@@ -137,7 +137,7 @@ def test_train_cli_writes_the_run_folder(trained_run):
         assert (out / name).is_file(), name
     assert [p.name for p in out.glob("replay-*.npz")] == ["replay-200.npz"]
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["reward"] == "force" and cfg["total_steps"] == 200 and cfg["seed"] == 3
+    assert cfg["reward"] == "force" and cfg["total_steps"] == 200 and cfg["seed"] == 3 and cfg["crash_reward"] == -1.0
     names = {r["name"] for r in csv.DictReader(open(out / "scalars.csv"))}
     for name in ("charts/episodic_return", "charts/SPS", "charts/epsilon", "losses/td_loss", "losses/q_values", "eval/gap_rmse_m", "eval/collisions"):
         assert name in names, name
@@ -145,6 +145,23 @@ def test_train_cli_writes_the_run_folder(trained_run):
     q, loaded = load_policy(out / "best.pt")
     assert loaded.reward == "force"
     assert not list(out.glob("*.tmp"))
+
+
+def test_a_training_checkpoint_exports_as_a_policy_with_its_weights(trained_run, tmp_path):
+    out, _ = trained_run
+    dst = tmp_path / "policy.pt"
+    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "policy", str(out / "latest.pt"), str(dst)]
+    done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "at step 200" in done.stdout, done.stderr
+    assert dst.stat().st_size < 5e6 < (out / "latest.pt").stat().st_size  # no target, optimizer or RNG
+    policy, training = torch.load(dst, weights_only=True), torch.load(out / "latest.pt", weights_only=True)
+    assert policy["kind"] == "policy" and policy["extra"]["step"] == 200 and policy["config"] == training["config"]
+    for key, value in training["model"].items():
+        torch.testing.assert_close(policy["model"][key], value, rtol=0, atol=0)
+    before = dst.read_bytes()
+    done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "exists" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert dst.read_bytes() == before
 
 
 def test_drive_ddqn_writes_a_valid_log(trained_run, tmp_path):
