@@ -34,8 +34,9 @@ TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "a
 # other values stays bit-identical to one that never stopped.
 RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
 
-# What a run saved before a setting existed did: it trained and evaluated that way.
 CRASH_REWARD_RANGE = (-10.0, 0.0)  # the floor of the normalised rewards is -1; a crash may cost more, never gain
+
+# What a run saved before a setting existed did: it trained and evaluated that way.
 LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "teacher_brake": 0.0, "eco_weights": (1.0, 0.5, 0.25, 0.0)}
 
 
