@@ -167,6 +167,10 @@ class Config:
     """[m/s^2] (teacher, ramp action) the full brake, which acts at once and is released
     only at the ramp's rate, is a label only where the teacher decelerates at least this
     hard: ISO 15622's comfort limit. 0: wherever it is the nearest force."""
+    brake_weight: float = 1.0
+    """(teacher) weight of the cross-entropy where the label is the full brake: the few
+    frames that decide a stop behind a standing car, among thousands of following states
+    (1: unweighted, as every run before 2026-11-26)."""
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
@@ -217,6 +221,8 @@ class Config:
             raise bad("teacher", "a teacher needs servers=1")
         if not self.teacher_brake >= 0.0:
             raise bad("teacher_brake", "must be >= 0")
+        if not self.brake_weight > 0.0:
+            raise bad("brake_weight", "must be > 0")
         if self.teacher_steps < 1:
             raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:

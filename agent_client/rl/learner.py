@@ -26,6 +26,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
+from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.controllers.acc import AccController
 from agent_client.errors import InputFileError
 from agent_client.rewards import ECO_TIME_GAP
@@ -136,6 +137,13 @@ TEACHER_ECO_FIRM_GAINS = (0.15, 0.3)
 TEACHER_MARGIN_GAPS = (8.0, 6.0)
 
 
+def label_weights(cfg: Config) -> torch.Tensor:
+    """The cross-entropy's weight per label: ``cfg.brake_weight`` on the hardest brake, 1 elsewhere."""
+    w = torch.ones(make_action_type(cfg.action).n)
+    w[EMERGENCY_LEVEL] = cfg.brake_weight  # action 0 of every type: the full brake (steps: the hard brake step)
+    return w
+
+
 def make_teacher(name: str) -> AccController | None:
     """The privileged teacher of a DAgger run (:data:`~agent_client.rl.config.TEACHERS`), or None.
 
@@ -211,6 +219,7 @@ class Learner:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
         self.teacher = make_teacher(cfg.teacher)
+        self.label_weights = label_weights(cfg).to(self.device) if cfg.brake_weight != 1.0 else None
         self.updates = 0
         self.best_score = math.inf
         self.saved: dict[str, Any] = {}
@@ -317,7 +326,7 @@ class Learner:
         q_all = self.q(frames, speeds, controls)  # [B, A]
         q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
         if self.teacher is not None:
-            loss = F.cross_entropy(q_all, b.actions.to(dev))
+            loss = F.cross_entropy(q_all, b.actions.to(dev), weight=self.label_weights)
         else:
             loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
         self.optimizer.zero_grad()

@@ -101,6 +101,39 @@ def test_the_teacher_update_learns_the_labels(tmp_path):
     learner.close()
 
 
+def _brake_share(tmp_path, brake_weight: float) -> float:
+    """The student's softmax share of the full brake after learning one state labelled half
+    full brake, half +0.7 (a torn teacher)."""
+    cfg = Config(reward="eco", action="ramp-fine", teacher="eco-margin", total_steps=10, batch_size=16, learning_rate=1e-3,
+                 torch_threads=1, brake_weight=brake_weight)  # fmt: skip
+    learner = Learner(cfg, tmp_path / str(brake_weight), trainer="single")
+    memory, stacker = ReplayMemory(64, 8, 1, n_controls=2), FrameStacker(8, 1)
+    frame = np.random.default_rng(0).integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
+    obs = stacker.push(frame, 20.0, np.array([0.0, 30.0], np.float32))
+    memory.start(obs)
+    for i in range(40):
+        memory.add(EMERGENCY_LEVEL if i % 2 else 17, 0.0, False, False, stacker.push(frame, 20.0, np.array([0.0, 30.0], np.float32)))
+    rng = np.random.default_rng(1)
+    for _ in range(150):
+        learner.update(memory.sample(16, rng, 1, 0.99))
+    b = memory.sample(1, rng, 1, 0.99)
+    with torch.no_grad():
+        p = torch.softmax(learner.q(b.frames, b.speeds, b.controls), 1)[0]
+    learner.close()
+    return float(p[EMERGENCY_LEVEL] / (p[EMERGENCY_LEVEL] + p[17]))
+
+
+def test_the_brake_weight_tilts_a_torn_label_toward_the_full_brake(tmp_path):
+    """Weighted cross-entropy's optimum on a state labelled brake and throttle equally is
+    w / (w + 1) on the brake: 1/2 unweighted, 4/5 at weight 4."""
+    plain, weighted = _brake_share(tmp_path, 1.0), _brake_share(tmp_path, 4.0)
+    assert plain == pytest.approx(0.5, abs=0.15)  # measured 0.55
+    assert weighted == pytest.approx(0.8, abs=0.1) and weighted > plain + 0.2  # measured 0.87
+    with pytest.raises(ConfigError, match="> 0") as e:
+        Config(brake_weight=0.0)
+    assert e.value.field == "brake_weight"
+
+
 def test_a_teacher_run_resumes_exactly_and_its_student_drives(tmp_path):
     cfg = Config(
         reward="eco", action="ramp", teacher="acc", teacher_steps=60, train_trajectories=("random", "stopped"), total_steps=120,
