@@ -223,6 +223,8 @@ class Config:
             raise bad("teacher_brake", "must be >= 0")
         if not self.brake_weight > 0.0:
             raise bad("brake_weight", "must be > 0")
+        if self.brake_weight != 1.0 and self.teacher == "none":
+            raise bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
         if self.teacher_steps < 1:
             raise bad("teacher_steps", "must be >= 1")
         if self.action not in ACTION_TYPES:

@@ -102,8 +102,8 @@ def test_the_teacher_update_learns_the_labels(tmp_path):
 
 
 def _brake_share(tmp_path, brake_weight: float) -> float:
-    """The student's softmax share of the full brake after learning one state labelled half
-    full brake, half +0.7 (a torn teacher)."""
+    """The student's share of the full brake against throttle (ramp-fine level 17, +0.45) after
+    learning one state labelled half each (a torn teacher)."""
     cfg = Config(reward="eco", action="ramp-fine", teacher="eco-margin", total_steps=10, batch_size=16, learning_rate=1e-3,
                  torch_threads=1, brake_weight=brake_weight)  # fmt: skip
     learner = Learner(cfg, tmp_path / str(brake_weight), trainer="single")
@@ -130,7 +130,10 @@ def test_the_brake_weight_tilts_a_torn_label_toward_the_full_brake(tmp_path):
     assert plain == pytest.approx(0.5, abs=0.15)  # measured 0.55
     assert weighted == pytest.approx(0.8, abs=0.1) and weighted > plain + 0.2  # measured 0.87
     with pytest.raises(ConfigError, match="> 0") as e:
-        Config(brake_weight=0.0)
+        Config(teacher="acc", brake_weight=0.0)
+    assert e.value.field == "brake_weight"
+    with pytest.raises(ConfigError, match="needs a teacher") as e:
+        Config(brake_weight=4.0)  # no teacher: nothing to weight
     assert e.value.field == "brake_weight"
 
 
