@@ -191,6 +191,17 @@ LEAD_SCENARIOS: dict[str, LeadScenario] = {
             ),
         ),
         LeadScenario(
+            "cut-in",
+            "A slower car cuts in close ahead: from frame 0 it drives in the host's lane, inside the camera's near field.",
+            "Euro NCAP Assisted Driving cut-in, and ISO 15622 target changes (the lateral move itself is not simulated)",
+            40.0,
+            (
+                Param("v_host", 8.0, 30.0, "m/s", "host's initial speed"),
+                Param("speed_deficit", 2.0, 8.0, "m/s", "how much slower the lead drives (constant)"),
+                Param("gap", 8.0, 25.0, "m", "initial gap, at least stopping_gap(speed_deficit) (drawn above it)"),
+            ),
+        ),
+        LeadScenario(
             "catch-up",
             "The lead drives much faster than the host at the start; the gap opens before the host catches up.",
             "ISO 15622 target approach from behind (free driving into following)",

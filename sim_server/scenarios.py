@@ -108,6 +108,11 @@ def build(name: str, rng: np.random.Generator, dt: float) -> LeadEpisode:
         v_lead, v_host = _draw(spec, rng, "v_lead"), _draw(spec, rng, "v_host")
         gap = _draw(spec, rng, "gap", low=stopping_gap(v_host - v_lead))
         return LeadEpisode(ramp_profile(v_lead, (), dt, T), v_host, gap, {"v_lead": v_lead, "v_host": v_host, "gap": gap})
+    if name == "cut-in":
+        v_host, deficit = _draw(spec, rng, "v_host"), _draw(spec, rng, "speed_deficit")
+        gap = _draw(spec, rng, "gap", low=stopping_gap(deficit))
+        p = {"v_host": v_host, "speed_deficit": deficit, "gap": gap}
+        return LeadEpisode(ramp_profile(v_host - deficit, (), dt, T), v_host, gap, p)
     if name == "catch-up":
         p = {k: _draw(spec, rng, k) for k in ("v_lead", "speed_deficit", "gap")}
         return LeadEpisode(ramp_profile(p["v_lead"], (), dt, T), p["v_lead"] - p["speed_deficit"], p["gap"], p)

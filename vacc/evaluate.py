@@ -29,7 +29,7 @@ from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from energy.metrics import Metrics
-from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TEST_TRAJECTORIES
+from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS, TEST_TRAJECTORIES
 from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
@@ -418,6 +418,23 @@ def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
         raise click.BadParameter(str(exc), param_hint="--seeds") from None
 
 
+def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
+    """The safety suite's lead scenarios from --lead-scenarios (default: all of them).
+
+    Raises:
+        click.BadParameter: an unknown name, none at all, or the option without --suite safety.
+    """
+    if names is None:
+        return tuple(LEAD_SCENARIOS)
+    if suite != "safety":
+        raise click.BadParameter("only the safety suite drives lead scenarios; add --suite safety", param_hint="--lead-scenarios")
+    chosen = tuple(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
+    unknown = [n for n in chosen if n not in LEAD_SCENARIOS]
+    if unknown or not chosen:
+        raise click.BadParameter(f"{names!r} names {'unknown ' + ', '.join(unknown) if unknown else 'no scenario'}; expected some of {', '.join(LEAD_SCENARIOS)}", param_hint="--lead-scenarios")
+    return chosen
+
+
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
@@ -431,14 +448,16 @@ def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
+@click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given.")
-def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, suite: str) -> dict[str, Any] | None:
+def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, lead_scenarios: str | None, suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table).
 
     Returns the combined metrics per method of the paper suite (see build_tables).
     """
     seed_list = _seed_list(seed, seeds, suite)
+    leads = _lead_scenarios(lead_scenarios, suite)
     if suite == "safety":
         from vacc.safety import run_suite
 
@@ -446,7 +465,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
         given = click.get_current_context().get_parameter_source("scenario") == click.core.ParameterSource.COMMANDLINE
         vehicles = (scenario,) if given else SCENARIOS
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in vehicles}
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles))
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:

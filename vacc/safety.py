@@ -114,7 +114,10 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     return "\n".join(lines) + "\n", rows
 
 
-def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False, vehicles: Iterable[str] = SCENARIOS) -> str:
+def run_suite(
+    out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
+    vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS),
+) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
@@ -123,7 +126,7 @@ def run_suite(out: Path, models: dict[str, str], seeds: list[int], jobs: int, co
     from vacc.evaluate import Job, drive_jobs
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, cold_start=cold_start, vehicles=vehicles)
+    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)

@@ -89,10 +89,24 @@ def test_stopping_is_possible_over_the_whole_documented_ranges():
     assert stopping_gap(stopped.param("v_host").high) <= stopped.param("gap").high
     slow = LEAD_SCENARIOS["slow-lead"]
     assert stopping_gap(slow.param("v_host").high - slow.param("v_lead").low) <= slow.param("gap").high
+    cut = LEAD_SCENARIOS["cut-in"]
+    assert stopping_gap(cut.param("speed_deficit").high) <= cut.param("gap").high
     for seed in range(50):
-        ep = S.build("slow-lead", np.random.default_rng(seed), DT)
-        assert ep.gap >= stopping_gap(ep.v_host - ep.v_lead[0])
+        for name in ("slow-lead", "cut-in"):
+            ep = S.build(name, np.random.default_rng(seed), DT)
+            assert ep.gap >= stopping_gap(ep.v_host - ep.v_lead[0]), (name, seed)
     assert stopping_gap(16.0) == pytest.approx(1.6 + 16.0**2 / (2 * -A_MIN) + 2.0)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_a_car_cutting_in_can_be_fallen_back_from_at_full_brake(seed):
+    world = World()
+    s0 = world.reset("ice", seed, "cut-in")
+    # It starts inside the camera's near field (the mask keeps a lead whole down to about 9 m).
+    assert s0.v_lead < s0.v_host and stopping_gap(s0.v_host - s0.v_lead) <= s0.gap <= 25.0
+    states = drive(world, [0.0] + [-1.0] * 60, scenario="ice", seed=seed, trajectory="cut-in")
+    assert not any(s.collision for s in states)
+    assert min(s.gap for s in states) >= STOP_MARGIN - 0.2
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -114,6 +128,8 @@ def test_scenario_shapes():
     assert np.flatnonzero(ep.v_lead == 0.0)[0] * DT == pytest.approx(t_stop, abs=DT)
     ep = S.build("brake-hard", rng(0), DT)
     assert ep.v_lead[-1] == pytest.approx(ep.params["v_cruise"] - ep.params["speed_drop"])
+    ep = S.build("cut-in", rng(0), DT)
+    assert np.ptp(ep.v_lead) == 0.0 and ep.v_host - ep.v_lead[0] == pytest.approx(ep.params["speed_deficit"])
     ep = S.build("catch-up", rng(0), DT)
     assert ep.v_lead[0] - ep.v_host == pytest.approx(ep.params["speed_deficit"]) and np.ptp(ep.v_lead) == 0.0
     ep = S.build("constant", rng(0), DT)

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from protocol.scenarios import LEAD_SCENARIOS
 from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, score_run
 
 HEADER = "t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n"
@@ -46,27 +47,40 @@ def test_the_acc_passes_every_scenario(tmp_path):
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     table = (out / "safety.md").read_text()
-    for name in ("stopped", "brake-stop", "brake-hard", "slow-lead", "catch-up", "stop-and-go", "constant"):
+    for name in LEAD_SCENARIOS:
         assert f"| acc (ice) | {name} | 1/1 | 0 |" in table and f"| acc (ev) | {name} | 1/1 |" in table, name
     assert "FAIL" not in table
 
 
-def test_a_given_scenario_drives_only_that_vehicle(tmp_path):
+def test_a_given_scenario_and_lead_scenarios_drive_only_those(tmp_path):
     models = tmp_path / "models"
     models.mkdir()
     out = tmp_path / "safety"
     result = subprocess.run(
-        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ev", "--seeds", "0", "--models", str(models), "--out", str(out), "--jobs", "2"],
+        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ev", "--lead-scenarios", "cut-in,stopped",
+         "--seeds", "0,1", "--models", str(models), "--out", str(out), "--jobs", "2"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     table = (out / "safety.md").read_text()
-    assert "| acc (ev) | stopped | 1/1 |" in table and "acc (ice)" not in table
+    assert "| acc (ev) | stopped | 2/2 |" in table and "| acc (ev) | cut-in | 2/2 |" in table
+    assert "acc (ice)" not in table and "slow-lead" not in table
+    assert len(list((out / "logs").glob("*.csv"))) == 4
 
 
-def test_bad_seeds_fail_naming_the_option(tmp_path):
+@pytest.mark.parametrize(
+    ("args", "option"),
+    [
+        (["--suite", "safety", "--seeds", "9-1"], "--seeds"),
+        (["--suite", "safety", "--lead-scenarios", "stopped,moose"], "--lead-scenarios"),
+        (["--suite", "safety", "--lead-scenarios", ","], "--lead-scenarios"),
+        (["--lead-scenarios", "stopped"], "--lead-scenarios"),  # the paper suite drives test-1..4
+    ],
+)
+def test_bad_options_fail_naming_the_option(tmp_path, args, option):
     result = subprocess.run(
-        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--seeds", "9-1", "--out", str(tmp_path / "o")],
+        [sys.executable, "-m", "vacc", "evaluate", *args, "--out", str(tmp_path / "o")],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
-    assert result.returncode == 2 and "--seeds" in result.stderr
+    assert result.returncode == 2 and option in result.stderr, result.stderr
+    assert not (tmp_path / "o").exists()
