@@ -137,7 +137,7 @@ RESUME_KEEPS = ("use_ray", "ray_address", "actor_cpus", "max_restarts")  # optio
 
 # The files a training run writes in its folder, and what --overwrite removes (with their
 # leftover .tmp files); nothing else, and nothing in subfolders.
-RUN_FILES = ("config.json", "summary.json", "scalars.csv", "latest.pt", "best.pt", "replay.npz", "replay-*.npz", "events.out.tfevents.*")
+RUN_FILES = ("config.json", "summary.json", "scalars.csv", "latest.pt", "best.pt", "replay.npz", "replay-*.npz", "events.out.tfevents.*", "evals/*.pt")
 
 
 def run_files(run: Path) -> list[Path]:

@@ -32,7 +32,7 @@ TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "a
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
 # other values stays bit-identical to one that never stopped.
-RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every")
+RESUMABLE_CHANGES = ("total_steps", "eval_every", "checkpoint_every", "log_every", "keep_evals")
 
 CRASH_REWARD_RANGE = (-10.0, 0.0)  # the floor of the normalised rewards is -1; a crash may cost more, never gain
 
@@ -142,6 +142,9 @@ class Config:
     scenario[:SEED] (docs/scenarios.md)."""
     eval_seconds: float | None = None
     """[s] evaluation episode length (0 or None: the whole 240 s trajectory)."""
+    keep_evals: bool = False
+    """Also keep every evaluation's policy as evals/<step>.pt (each the size of best.pt), to
+    choose between them later on other episodes (the safety suite's seeds)."""
     checkpoint_every: int = 10_000
     """Steps between full checkpoints (taken at the next episode end)."""
     init_from: str | None = None

@@ -422,6 +422,9 @@ class Learner:
         if s < self.best_score:
             self.best_score = s
             save_policy(self.q, cfg, self.run_dir / "best.pt", {"step": step, "eval": self.last_eval})
+        if cfg.keep_evals:
+            (self.run_dir / "evals").mkdir(exist_ok=True)
+            save_policy(self.q, cfg, self.run_dir / "evals" / f"{step}.pt", {"step": step, "eval": self.last_eval})
         self.log.flush()
         if self.on_eval is not None:
             self.on_eval(step, self.last_eval)

@@ -73,7 +73,7 @@ def test_resume_may_change_when_it_evaluates_saves_and_logs(tmp_path):
     held_out = Config(**{**TINY.__dict__, "eval_trajectories": ("random:3",), "eval_seconds": 1.0})
     train(held_out, tmp_path / "whole", progress=False)  # one evaluation, at the end
     train(Config(**{**held_out.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
-    changed = Config(**{**held_out.__dict__, "eval_every": 40, "checkpoint_every": 45, "log_every": 10})
+    changed = Config(**{**held_out.__dict__, "eval_every": 40, "checkpoint_every": 45, "log_every": 10, "keep_evals": True})
     train(changed, tmp_path / "split", resume=True, progress=False)
     a, b = _state(tmp_path / "whole"), _state(tmp_path / "split")
     assert a["rng"]["numpy"] == b["rng"]["numpy"]
@@ -83,6 +83,12 @@ def test_resume_may_change_when_it_evaluates_saves_and_logs(tmp_path):
     whole, split = evals(tmp_path / "whole"), evals(tmp_path / "split")
     assert list(whole) == [120] and list(split) == [60, 90, 120]  # at episode ends (30 steps each)
     assert split[120] == whole[120]
+    # Each evaluation after the resume kept its policy; the last is the whole run's best.pt.
+    assert sorted(p.name for p in (tmp_path / "split" / "evals").iterdir()) == ["120.pt", "90.pt"]
+    kept, best = load_policy(tmp_path / "split" / "evals" / "120.pt"), load_policy(tmp_path / "whole" / "best.pt")
+    for key, value in best[0].state_dict().items():
+        torch.testing.assert_close(kept[0].state_dict()[key], value, rtol=0, atol=0)
+    assert not (tmp_path / "whole" / "evals").exists()
 
     log = tmp_path / "drive.csv"
     args = ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "random", "--seed", "3", "--duration", "1", "--log", str(log), "--quiet"]  # fmt: skip
