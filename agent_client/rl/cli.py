@@ -136,7 +136,7 @@ def _interrupt(signum: int, frame: object) -> None:
 RESUME_KEEPS = ("use_ray", "ray_address", "actor_cpus", "max_restarts")  # options not in config.json
 
 # The files a training run writes in its folder, and what --overwrite removes (with their
-# leftover .tmp files); nothing else, and nothing in subfolders.
+# leftover .tmp files); nothing else, and of subfolders only evals/ (--keep-evals).
 RUN_FILES = ("config.json", "summary.json", "scalars.csv", "latest.pt", "best.pt", "replay.npz", "replay-*.npz", "events.out.tfevents.*", "evals/*.pt")
 
 
