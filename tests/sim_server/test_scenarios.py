@@ -103,7 +103,7 @@ def test_a_car_cutting_in_can_be_fallen_back_from_at_full_brake(seed):
     world = World()
     s0 = world.reset("ice", seed, "cut-in")
     # It starts inside the camera's near field (the mask keeps a lead whole down to about 9 m).
-    assert s0.v_lead < s0.v_host and stopping_gap(s0.v_host - s0.v_lead) <= s0.gap <= 25.0
+    assert s0.v_lead < s0.v_host and stopping_gap(s0.v_host - s0.v_lead) <= s0.gap <= LEAD_SCENARIOS["cut-in"].param("gap").high
     states = drive(world, [0.0] + [-1.0] * 60, scenario="ice", seed=seed, trajectory="cut-in")
     assert not any(s.collision for s in states)
     assert min(s.gap for s in states) >= STOP_MARGIN - 0.2
