@@ -2,23 +2,24 @@
 
     .venv/bin/python scripts/energy_frontier.py --seeds 200-215
     .venv/bin/python scripts/energy_frontier.py --tests
+    .venv/bin/python scripts/energy_frontier.py --scenario ice --seeds 300-307
 
-Drives the traditional ACC once per episode over UDP (`vacc drive`, EV scenario) to record
-the lead. Then, without the simulator, it replays other followers behind that same lead
+Drives the traditional ACC once per episode over UDP (`vacc drive`) to record the lead. Then, without the simulator, it replays other followers behind that same lead
 with the host's own kinematics (the force map of sim_server.vehicle, 10 Hz, the speed
 clamped to [0, set speed]; the replay of the ACC reproduces its logged energy, which the
 script checks):
 
-* causal laws: the ACC law on a fixed 55 m gap over a grid of gains (beta, gamma), with
-  the eco-margin gaps and a 3 m/s^2 braking cap, through the ramp-fine actuator toward
-  the law's force (what a student with the mean decision approximates);
-* preview: energy.frontier.preview_bound over a grid of gap weights, from the ACC's
-  initial speed and gap to its final speed: what a follower that knew the lead's
-  whole future could reach.
+* causal laws over a grid of gains (beta, gamma), with the eco-margin gaps, through the
+  ramp-fine actuator toward the law's force (what a student with the mean decision
+  approximates). EV: the ACC law on a fixed 55 m gap with a 3 m/s^2 braking cap (the
+  gentle 55 m teachers). ICE: the eco teachers' law, a 2 s time gap capped at 55 m;
+* preview (EV only; its model is eq. 6): energy.frontier.preview_bound over a grid of gap
+  weights, from the ACC's initial speed and gap to its final speed: what a follower that
+  knew the lead's whole future could reach.
 
 Prints, per follower, the gap RMSE to 55 m (mean and worst over episodes) and the energy
-as a ratio to the ACC's on the same episode (eq. 6); writes OUT/summary.json and
-OUT/energy-frontier.png.
+(EV: eq. 6; ICE: the Corolla's CMEM fuel) as a ratio to the ACC's on the same episode;
+writes OUT/summary.json and OUT/energy-frontier.png.
 """
 
 from __future__ import annotations
@@ -37,7 +38,10 @@ import numpy as np
 from agent_client.actions import FineRamp
 from agent_client.controllers.acc import AccController
 from agent_client.rewards import CONTROL_PERIOD as DT
+from agent_client.rewards import ECO_TIME_GAP
 from agent_client.rl.learner import TEACHER_55_GENTLE, TEACHER_MARGIN_GAPS
+from energy.cmem import COROLLA_2022
+from energy.cmem import per_mile as cmem_per_mile
 from energy.ev import eq6_per_mile
 from energy.frontier import preview_bound
 from protocol.constants import DESIRED_GAP
@@ -45,19 +49,34 @@ from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
 from sim_server.vehicle import accel_of_force, advance_speed
 from vacc.safety import parse_seeds
 
-BETAS = (0.1, 0.2, 0.3, 0.4, 0.5)
-GAMMAS = (1.2, 2.0, 3.0, 4.0)
+BETAS = {"ev": (0.1, 0.2, 0.3, 0.4, 0.5), "ice": (0.1, 0.125, 0.15, 0.2)}
+GAMMAS = {"ev": (1.2, 2.0, 3.0, 4.0), "ice": (0.3, 0.6, 1.0, 2.0)}
+UNIT = {"ev": "kJ/mi", "ice": "g/mi"}
+TARGET_RMSE = {"ev": 5.1, "ice": 3.4}  # [m] issue #15's gap RMSE bound on each episode
 LAMS = (0.001, 0.003, 0.01, 0.03, 0.1)
 DECEL_CAP = TEACHER_55_GENTLE[2]  # [m/s^2] the gentle teachers' braking cap
 
 
-def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint: str | None = None) -> dict[str, np.ndarray]:
+def energy_per_mile(scenario: str, t: np.ndarray, v: np.ndarray) -> float:
+    """EV: eq. 6 [kJ/mi]; ICE: the Corolla's CMEM fuel [g/mi]."""
+    return eq6_per_mile(t, v).energy_kj_per_mi if scenario == "ev" else cmem_per_mile(t, v, COROLLA_2022).fuel_g_per_mi
+
+
+def teacher_law(scenario: str, beta: float, gamma: float) -> AccController:
+    """The law of the grid at (beta, gamma), with the eco-margin gaps (see the module docstring)."""
+    d_safe, d_min = TEACHER_MARGIN_GAPS
+    if scenario == "ev":
+        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=DECEL_CAP, d_safe=d_safe, d_min=d_min)
+    return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=beta, gamma=gamma, d_safe=d_safe, d_min=d_min)
+
+
+def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint: str | None = None, scenario: str = "ev") -> dict[str, np.ndarray]:
     """Drive the ACC (or a DDQN checkpoint) over UDP; the log's columns, with the lead's position."""
     log = out / "logs" / f"{name}-{trajectory}-{seed}.csv"
     log.parent.mkdir(parents=True, exist_ok=True)
     if not log.exists():
         who = ["--controller", "acc"] if checkpoint is None else ["--controller", "ddqn", "--checkpoint", checkpoint]
-        cmd = [sys.executable, "-m", "vacc", "drive", *who, "--scenario", "ev", "--trajectory", trajectory,
+        cmd = [sys.executable, "-m", "vacc", "drive", *who, "--scenario", scenario, "--trajectory", trajectory,
                "--seed", str(seed), "--log", str(log), "--quiet"]  # fmt: skip
         subprocess.run(cmd, check=True)
     with log.open() as f:
@@ -92,22 +111,24 @@ def rmse(gap: np.ndarray) -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", default="200-215", help="random EV episodes, e.g. 200-215")
-    p.add_argument("--tests", action="store_true", help="the EV test windows test-1..4 (seed 0) instead")
-    p.add_argument("--out", default=None, help="output folder (default runs/energy-frontier-{random,tests})")
-    p.add_argument("--betas", default=",".join(map(str, BETAS)))
-    p.add_argument("--gammas", default=",".join(map(str, GAMMAS)))
-    p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)]")
+    p.add_argument("--scenario", choices=sorted(UNIT), default="ev", help="the host vehicle (default ev)")
+    p.add_argument("--seeds", default="200-215", help="random episodes, e.g. 200-215")
+    p.add_argument("--tests", action="store_true", help="the test trajectories test-1..4 (seed 0) instead")
+    p.add_argument("--out", default=None, help="output folder (default runs/energy-frontier-{random,tests}, with -ice for the ICE car)")
+    p.add_argument("--betas", default=None, help="gap gains [1/s^2], comma-separated (default: the scenario's grid)")
+    p.add_argument("--gammas", default=None, help="speed-difference gains [1/s], comma-separated (default: the scenario's grid)")
+    p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
-    out = Path(a.out or f"runs/energy-frontier-{'tests' if a.tests else 'random'}")
+    sc, unit = a.scenario, UNIT[a.scenario]
+    out = Path(a.out or f"runs/energy-frontier-{'tests' if a.tests else 'random'}{'-ice' if sc == 'ice' else ''}")
     out.mkdir(parents=True, exist_ok=True)
-    runs = [record(t, s, out) for t, s in episodes]
+    runs = [record(t, s, out, scenario=sc) for t, s in episodes]
 
     acc = []
     for run in runs:
-        e = eq6_per_mile(run["t"], run["v_host"]).energy_kj_per_mi
+        e = energy_per_mile(sc, run["t"], run["v_host"])
         v, _ = replay(run, AccController(), ramp=False)
         if not np.allclose(v, run["v_host"], rtol=0, atol=1e-9):
             raise SystemExit("the kinematic replay does not reproduce the ACC's logged run: the simulator's host model changed")
@@ -115,29 +136,30 @@ def main() -> None:
     rows: list[dict[str, Any]] = [{"follower": "acc", "rmse": [rmse(r["gap"]) for r in runs], "energy": acc}]
     for item in a.models:
         name, _, path = item.partition("=")
-        driven = [record(t, s, out, name, path) for t, s in episodes]
+        driven = [record(t, s, out, name, path, sc) for t, s in episodes]
         rows.append({"follower": name, "model": path, "rmse": [rmse(r["gap"]) for r in driven],
-                     "energy": [eq6_per_mile(r["t"], r["v_host"]).energy_kj_per_mi for r in driven]})  # fmt: skip
-    d_safe, d_min = TEACHER_MARGIN_GAPS
-    for beta, gamma in itertools.product(map(float, a.betas.split(",")), map(float, a.gammas.split(","))):
-        law = AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=DECEL_CAP, d_safe=d_safe, d_min=d_min)
-        done = [replay(r, law, ramp=True) for r in runs]
+                     "energy": [energy_per_mile(sc, r["t"], r["v_host"]) for r in driven]})  # fmt: skip
+    betas = a.betas.split(",") if a.betas else BETAS[sc]
+    gammas = a.gammas.split(",") if a.gammas else GAMMAS[sc]
+    for beta, gamma in itertools.product(map(float, betas), map(float, gammas)):
+        done = [replay(r, teacher_law(sc, beta, gamma), ramp=True) for r in runs]
         rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}", "beta": beta, "gamma": gamma,
-                     "rmse": [rmse(g) for _, g in done], "energy": [eq6_per_mile(r["t"], v).energy_kj_per_mi for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
-    for lam in map(float, a.lams.split(",")):
+                     "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
+    for lam in map(float, a.lams.split(",") if sc == "ev" else ()):
         pts = [preview_bound(r["t"], r["x_lead"], r["v_host"][0], r["gap"][0], r["v_host"][-1], lam) for r in runs]
         rows.append({"follower": f"preview lam {lam:g}", "lam": lam, "rmse": [q.gap_rmse_m for q in pts], "energy": [q.energy_kj_per_mi for q in pts],
                      "accel_range": [min(q.accel_range[0] for q in pts), max(q.accel_range[1] for q in pts)]})  # fmt: skip
     for row in rows:
         row["ratio"] = float(np.mean(np.array(row["energy"]) / np.array(acc)))
         extra = f"  accel {row['accel_range'][0]:.1f}..{row['accel_range'][1]:.1f} m/s^2" if "accel_range" in row else ""
-        print(f"{row['follower']:28} gap RMSE {np.mean(row['rmse']):6.2f} / {max(row['rmse']):6.2f} m   energy {np.mean(row['energy']):7.1f} kJ/mi  x{row['ratio']:.3f} of the ACC{extra}")
+        print(f"{row['follower']:28} gap RMSE {np.mean(row['rmse']):6.2f} / {max(row['rmse']):6.2f} m   energy {np.mean(row['energy']):7.1f} {unit}  x{row['ratio']:.3f} of the ACC{extra}")
     (out / "summary.json").write_text(json.dumps({"episodes": episodes, "rows": rows}, indent=1) + "\n")
-    plot(rows, out / "energy-frontier.png", "EV test windows 1-4" if a.tests else f"random EV episodes {a.seeds}")
+    where = ("EV test windows 1-4" if sc == "ev" else "ICE test-1..4") if a.tests else f"random {sc.upper()} episodes {a.seeds}"
+    plot(rows, out / "energy-frontier.png", where, "energy / the ACC's (eq. 6)" if sc == "ev" else "fuel / the ACC's (Corolla CMEM)", TARGET_RMSE[sc])
     print(f"wrote {out / 'summary.json'} and {out / 'energy-frontier.png'}")
 
 
-def plot(rows: list[dict[str, Any]], path: Path, title: str) -> None:
+def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target: float) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -145,23 +167,24 @@ def plot(rows: list[dict[str, Any]], path: Path, title: str) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     preview = [r for r in rows if "lam" in r]
-    ax.plot([np.mean(r["rmse"]) for r in preview], [r["ratio"] for r in preview], "k-o", label="preview (knows the lead's future)")
+    if preview:
+        ax.plot([np.mean(r["rmse"]) for r in preview], [r["ratio"] for r in preview], "k-o", label="preview (knows the lead's future)")
     laws = [r for r in rows if "beta" in r]
     for gamma in sorted({r["gamma"] for r in laws}):
         pts = sorted((np.mean(r["rmse"]), r["ratio"]) for r in laws if r["gamma"] == gamma)
         betas = ", ".join(f"{r['beta']:g}" for r in laws if r["gamma"] == gamma)
-        ax.plot(*zip(*pts, strict=True), "--s", ms=4, label=f"55 m law, gamma {gamma:g} (beta {betas})")
+        ax.plot(*zip(*pts, strict=True), "--s", ms=4, label=f"law, gamma {gamma:g} (beta {betas})")
     for r in rows:
         if "model" in r:
             ax.plot(np.mean(r["rmse"]), r["ratio"], "*", ms=12, label=f"{r['follower']} (driven from the camera)")
     acc = rows[0]
     ax.axhline(1.0, color="tab:red", lw=1)
     ax.annotate(f"ACC (1.8 s gap): gap RMSE {np.mean(acc['rmse']):.1f} m", (0.98, 1.0), xycoords=("axes fraction", "data"), ha="right", va="bottom", color="tab:red")
-    ax.axvline(5.1, color="gray", lw=0.8, ls=":")
+    ax.axvline(target, color="gray", lw=0.8, ls=":")
     ax.set_xlim(0, 12)
     ax.set_ylim(0.88, 1.12)
     ax.set_xlabel("gap RMSE to 55 m, mean over episodes [m]")
-    ax.set_ylabel("energy / the ACC's (eq. 6)")
+    ax.set_ylabel(ylabel)
     ax.set_title(f"What a 55 m follower spends: {title}")
     ax.legend(fontsize=7)
     fig.tight_layout()

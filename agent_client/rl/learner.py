@@ -131,6 +131,10 @@ TEACHER_ECO_GAINS = (0.1, 0.3)
 # faster (worst gap RMSE 3.71 m against 3.92 m through the ramp) for 1.7 % more fuel, still
 # 1.6 % under the ACC's; chosen on random ICE seeds 200-215 (docs/training.md)
 TEACHER_ECO_FIRM_GAINS = (0.15, 0.3)
+# (beta, gamma) of the "eco-mid" teacher: between the two, 2.5 % under the ACC's fuel at a worst
+# gap RMSE of 3.20 m through the ramp; chosen on random ICE seeds 300-307 by
+# scripts/energy_frontier.py --scenario ice (docs/training.md)
+TEACHER_ECO_MID_GAINS = (0.125, 0.3)
 # (standstill distance d_safe, closest approach d_min) [m] of the "-margin" teachers: 3 m
 # more than the ACC's, about what the eco student, seeing the danger a few frames late,
 # overran its teacher by (1.27 m behind a stopped car where the teacher stops at 4.6 m)
@@ -142,6 +146,9 @@ def label_weights(cfg: Config) -> torch.Tensor:
     w = torch.ones(make_action_type(cfg.action).n)
     w[EMERGENCY_LEVEL] = cfg.brake_weight  # action 0 of every type: the full brake (steps: the hard brake step)
     return w
+
+
+ECO_LAWS = {"eco": TEACHER_ECO_GAINS, "eco-mid": TEACHER_ECO_MID_GAINS, "eco-firm": TEACHER_ECO_FIRM_GAINS}
 
 
 def make_teacher(name: str) -> AccController | None:
@@ -158,8 +165,8 @@ def make_teacher(name: str) -> AccController | None:
     if law in ("acc-55-gentle", "acc-55-eco"):
         beta, gamma, decel_cap = TEACHER_55_GENTLE if law == "acc-55-gentle" else TEACHER_55_ECO
         return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap, **gaps)
-    if law in ("eco", "eco-firm"):  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
-        beta, gamma = TEACHER_ECO_GAINS if law == "eco" else TEACHER_ECO_FIRM_GAINS
+    if law in ECO_LAWS:  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
+        beta, gamma = ECO_LAWS[law]
         return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=beta, gamma=gamma, **gaps)
     return AccController(**gaps)
 

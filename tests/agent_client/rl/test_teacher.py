@@ -174,7 +174,7 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert make_teacher("eco")(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "eco", "eco-margin", "eco-firm", "eco-firm-margin"}
+    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin"}
 
 
 def test_the_gentle_55_m_teacher_caps_its_braking_but_not_its_collision_avoidance():
@@ -207,13 +207,14 @@ def test_the_eco_55_m_teacher_matches_the_leads_speed_harder_than_the_gentle_one
 def test_the_firm_eco_teacher_opens_a_short_gap_faster_on_the_same_desired_gap():
     from agent_client.rl.learner import make_teacher
 
-    eco, firm = make_teacher("eco"), make_teacher("eco-firm")
+    eco, mid, firm = make_teacher("eco"), make_teacher("eco-mid"), make_teacher("eco-firm")
     for v in (5.0, 20.0, 30.0):
-        assert firm.reference_gap(v) == eco.reference_gap(v)
+        assert firm.reference_gap(v) == mid.reference_gap(v) == eco.reference_gap(v)
     close = {"gap": 27.7, "v_host": 28.2, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
-    assert firm(close) < eco(close) < 0.0
+    assert firm(close) < mid(close) < eco(close) < 0.0
     at_gap = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
-    assert firm(at_gap) == eco(at_gap) == 0.0
+    assert firm(at_gap) == mid(at_gap) == eco(at_gap) == 0.0
+    assert make_teacher("eco-mid-margin").reference_gap(0.0) == make_teacher("eco-margin").reference_gap(0.0)
 
 
 def test_the_margin_teacher_follows_as_the_eco_teacher_but_stops_further_back():
