@@ -97,7 +97,7 @@ def drive_episode(
     collision = False
     if preroll is None:
         preroll = getattr(controller, "history_steps", 0)
-    with RunLog(log) as runlog:
+    with RunLog(log, getattr(controller, "log_columns", ())) as runlog:
         obs = session.reset(
             scenario=scenario, seed=seed, trajectory=trajectory, trace=trace, duration=duration,
             host_speed=host_speed, gap=gap, set_speed=set_speed, preroll=preroll,
@@ -109,17 +109,21 @@ def drive_episode(
                 controller.warm(obs)
             obs = session.step(0.0)
         while True:
-            runlog.write(obs)
             gaps.append(obs["gap"])
             collision = collision or obs["collision"]
             if on_step is not None:
                 on_step(obs)
             if obs["terminated"] or obs["truncated"]:
+                runlog.write(obs)
                 break
+            values: tuple[float, ...] = ()  # the controller's own columns for this row, once it decided
             try:
                 action = controller(obs)
+                values = getattr(controller, "log_values", ())
             except StopEpisode:
                 break  # the log keeps the rows so far; the summary's end reads "stopped"
+            finally:
+                runlog.write(obs, values)
             obs = session.step(action)
     g = np.array(gaps)
     return DriveSummary(

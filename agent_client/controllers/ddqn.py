@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
@@ -27,6 +28,10 @@ class DDQNController:
     Uses the camera image and the host speed of the observation only, and, for the
     held-force action types ("steps", "ramp", "ramp-fine"), its own last force and the set speed the driver chose.
 
+    A network with a gap head (``--aux-gap``) also estimates the gap from the same
+    frames; ``vacc drive`` logs it as ``gap_est`` (:attr:`log_columns`). It is an output
+    to inspect, never used to decide.
+
     Args:
         q: the Q-network.
         cfg: its config (stack size, stride, zoom).
@@ -37,6 +42,8 @@ class DDQNController:
     def __init__(self, q: QNetwork, cfg: Config):
         self.q, self.cfg = q.eval(), cfg
         self.policy = Policy.of(self.q, cfg)
+        self.log_columns: tuple[str, ...] = ("gap_est",) if q.gap_head is not None else ()
+        self.log_values: tuple[float, ...] = ()  # of the last decision, one per log column
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
         self.actions = make_action_type(cfg.action)
 
@@ -76,7 +83,19 @@ class DDQNController:
         """The decision for a stacked observation (frames, speeds and, if observed, controls)."""
         return self.policy(stacked)
 
+    def gap_estimate(self, stacked: dict[str, np.ndarray]) -> float:
+        """The gap head's estimate [m] for a stacked observation (a network with the head)."""
+        dev = next(self.q.parameters()).device
+        controls = stacked.get("controls")
+        with torch.inference_mode():
+            c = torch.from_numpy(controls).to(dev)[None] if controls is not None else None
+            _, raw = self.q.q_and_gap(torch.from_numpy(stacked["frames"]).to(dev)[None], torch.from_numpy(stacked["speeds"]).to(dev)[None], c)
+        return float(QNetwork.gap_estimate(raw)[0])
+
     def __call__(self, obs: dict[str, Any]) -> float:
         """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
-        d = self.act(self.warm(obs))
+        stacked = self.warm(obs)
+        d = self.act(stacked)
+        if self.log_columns:
+            self.log_values = (self.gap_estimate(stacked),)
         return self.actions.force(d.action) if d.target is None else self.actions.force_toward(d.target)  # type: ignore[attr-defined]

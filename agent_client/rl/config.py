@@ -7,6 +7,7 @@ so the docstrings below are the ``--help`` text and the defaults are the CLI's.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -176,6 +177,13 @@ class Config:
     """(teacher) weight of the cross-entropy where the label is the full brake: the few
     frames that decide a stop behind a standing car, among thousands of following states
     (1: unweighted, as every run before 2026-11-26)."""
+    aux_gap: float = 0.0
+    """Weight of an auxiliary loss: a second head on the network's hidden layer estimates the
+    gap from the same frames and speeds (the log of gap / 55 m, the gap clipped to
+    [1, 150] m, so 8 m against 12 m counts as much as 55 m against 82 m). The gap is
+    privileged: it is the head's training target, stored beside the replay, and never an
+    input; the Q-values (or the student's outputs) do not read the head. 0: no head, as
+    every run before it. vacc drive logs the estimate (gap_est) of a model that has one."""
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
@@ -232,6 +240,10 @@ class Config:
             raise bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
         if self.teacher_steps < 1:
             raise bad("teacher_steps", "must be >= 1")
+        if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):
+            raise bad("aux_gap", f"must be finite and >= 0, got {self.aux_gap}")
+        if self.aux_gap > 0.0 and self.servers != 1:
+            raise bad("aux_gap", "needs servers=1 (the K-stream trainer stores no gaps)")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
         if self.decision not in DECISIONS:

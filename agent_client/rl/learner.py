@@ -42,7 +42,7 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
+from agent_client.rl.network import Decision, Policy, QNetwork, gap_head_target, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from protocol.constants import DESIRED_GAP
@@ -265,9 +265,9 @@ class Learner:
         init_q, init_cfg = load_policy(cfg.init_from)
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
-        if init_cfg.action == cfg.action:
+        if init_cfg.action == cfg.action and init_q.state_dict().keys() == self.q.state_dict().keys():
             self.q.load_state_dict(init_q.state_dict())
-        else:  # another action set: keep its perception, learn a new output layer
+        else:  # another action set or a gap head added: keep its perception, learn the new output layers
             transfer_weights(init_q, self.q)
         self.target.load_state_dict(self.q.state_dict())
 
@@ -320,22 +320,30 @@ class Learner:
 
     # ------------------------------------------------------------------ learning
 
-    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float] | None:
+    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float, float | None] | None:
         """One gradient step on a replay batch: Double DQN, or with a teacher the
         cross-entropy of the network's outputs (as logits) to the teacher's labels;
-        logs losses at ``log_step``.
+        logs losses at ``log_step``. With ``cfg.aux_gap``, the gap head's Huber loss on
+        the stored gaps is added, times that weight.
 
         Returns:
-            (loss, mean output of the stored actions) when ``log_step`` is given.
+            (loss, mean output of the stored actions, the gap head's loss or None) when
+            ``log_step`` is given.
         """
         cfg, dev = self.cfg, self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
-        q_all = self.q(frames, speeds, controls)  # [B, A]
+        if cfg.aux_gap > 0.0:
+            q_all, gap_raw = self.q.q_and_gap(frames, speeds, controls)  # [B, A], [B]
+            gap_loss: torch.Tensor | None = F.smooth_l1_loss(gap_raw, gap_head_target(b.gaps.to(dev)))
+        else:
+            q_all, gap_loss = self.q(frames, speeds, controls), None  # [B, A]
         q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
         if self.teacher is not None:
             loss = F.cross_entropy(q_all, b.actions.to(dev), weight=self.label_weights)
         else:
             loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
+        if gap_loss is not None:
+            loss = loss + cfg.aux_gap * gap_loss
         self.optimizer.zero_grad()
         loss.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
@@ -343,7 +351,7 @@ class Learner:
         self.updates += 1
         if log_step is None:
             return None
-        return loss.item(), q_taken.mean().item()
+        return loss.item(), q_taken.mean().item(), None if gap_loss is None else gap_loss.item()
 
     @torch.no_grad()
     def _td_target(self, b: ReplaySamples) -> torch.Tensor:
@@ -380,12 +388,14 @@ class Learner:
         batch = memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
         self._jobs.append(self._worker.submit(lambda: self._pending(self.update(batch, log_step), log_step)))
 
-    def _pending(self, losses: tuple[float, float] | None, step: int | None) -> None:
+    def _pending(self, losses: tuple[float, float, float | None] | None, step: int | None) -> None:
         if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
             names = ("losses/teacher_ce", "losses/teacher_logit") if self.teacher is not None else ("losses/td_loss", "losses/q_values")
             self._pending_scalars += [(names[0], losses[0], step), (names[1], losses[1], step)]
+            if losses[2] is not None:
+                self._pending_scalars.append(("losses/gap_head", losses[2], step))
 
-    def _log_losses(self, losses: tuple[float, float] | None, step: int | None) -> None:
+    def _log_losses(self, losses: tuple[float, float, float | None] | None, step: int | None) -> None:
         self._pending(losses, step)
         for name, value, at in self._pending_scalars:
             self.log.add(name, value, at)

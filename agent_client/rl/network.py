@@ -20,7 +20,18 @@ from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import DECISIONS
 from protocol.constants import FORCES, N_ACTIONS
 
-__all__ = ["QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights"]
+__all__ = [
+    "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
+    "GAP_HEAD_RANGE", "gap_head_target",
+]  # fmt: skip
+
+GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
+GAP_HEAD_RANGE = (1.0, 150.0)  # [m] the gap head's target is clipped to this: beyond 150 m only "far" matters
+
+
+def gap_head_target(gap: torch.Tensor) -> torch.Tensor:
+    """The gap head's training target for gaps [m]: log(clip(gap, 1, 150) / 55)."""
+    return torch.log(gap.clamp(*GAP_HEAD_RANGE) / GAP_HEAD_SCALE)
 
 
 class QNetwork(nn.Module):
@@ -37,10 +48,12 @@ class QNetwork(nn.Module):
 
     The forward pass takes frames, speeds and the agent's own controls only
     (:data:`agent_client.actions.CONTROLS`: its last force and the driver's set speed):
-    there is no way to give it the gap.
+    there is no way to give it the gap. With ``gap_head`` (``Config.aux_gap``), a second
+    output layer on the hidden layer estimates the gap (:meth:`q_and_gap`), trained on the
+    simulator's gap as an auxiliary loss; the Q-values do not read it.
     """
 
-    def __init__(self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0):
+    def __init__(self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0, gap_head: bool = False):
         super().__init__()
         self.speed_scale, self.n_controls = speed_scale, n_controls
         # force as it is (in [-1, 1]); set speed over the speed scale
@@ -60,6 +73,8 @@ class QNetwork(nn.Module):
         self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack * (1 + n_controls), 256), nn.ReLU(), nn.Linear(256, n_actions))
         # plain tuples, not attributes, so that the state dict keeps one name per tensor
         self._linears: tuple[nn.Linear, ...] = tuple(m for m in self.fc if isinstance(m, nn.Linear))
+        # created after the layers above, so that a network with the head draws their initial weights as one without
+        self.gap_head = nn.Linear(256, 1) if gap_head else None
 
     @classmethod
     def of(cls, cfg: Any) -> QNetwork:
@@ -67,7 +82,7 @@ class QNetwork(nn.Module):
         from agent_client.actions import make_action_type
 
         actions = make_action_type(cfg.action)
-        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls)
+        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0)
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """Q-values.
@@ -81,6 +96,26 @@ class QNetwork(nn.Module):
         Returns:
             ``[B, A]`` Q-values, one per action.
         """
+        hidden = self._hidden(frames, speeds, controls)
+        out = self._linears[1]
+        return F.linear(hidden, out.weight, out.bias)  # [B, A]
+
+    def q_and_gap(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The Q-values ``[B, A]`` and the gap head's raw output ``[B]`` (log(gap / 55 m);
+        :meth:`gap_estimate` in metres), from one pass. Only for a network with the head."""
+        if self.gap_head is None:
+            raise ValueError("this network has no gap head (trained without --aux-gap)")
+        hidden = self._hidden(frames, speeds, controls)
+        out = self._linears[1]
+        return F.linear(hidden, out.weight, out.bias), F.linear(hidden, self.gap_head.weight, self.gap_head.bias)[:, 0]
+
+    @staticmethod
+    def gap_estimate(raw: torch.Tensor) -> torch.Tensor:
+        """The gap head's raw output in metres."""
+        return GAP_HEAD_SCALE * torch.exp(raw)
+
+    def _hidden(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None) -> torch.Tensor:
+        """The hidden layer's activations ``[B, 256]``."""
         # The layers are called functionally, with in-place ReLUs: the same kernels and so the
         # same numbers as calling the modules, without their per-call overhead (a third of
         # a batch-1 decision).
@@ -96,8 +131,8 @@ class QNetwork(nn.Module):
         else:
             c = (controls.float() / self._control_scale.to(controls.device)).flatten(1)  # [B, S * C]
             z = torch.cat([x, v, c], dim=1)
-        hidden, out = self._linears
-        return F.linear(torch.relu_(F.linear(z, hidden.weight, hidden.bias)), out.weight, out.bias)  # [B, A]
+        hidden = self._linears[0]
+        return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
 
 
 def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:

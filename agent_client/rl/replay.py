@@ -38,6 +38,7 @@ class ReplaySamples(NamedTuple):
     next_frames: torch.Tensor  # [B, S, H, W] uint8, m steps on
     next_speeds: torch.Tensor  # [B, S] float32
     next_controls: torch.Tensor  # [B, S, C] float32
+    gaps: torch.Tensor  # [B] float32 [m], the first observations' gaps (NaN: a memory without them)
 
 
 class _Plan(NamedTuple):
@@ -64,15 +65,19 @@ class ReplayMemory:
         frame_stack, stack_stride: as the env's.
         frame_shape: (H, W) of a preprocessed frame.
         n_controls: controls per slot (the "steps" action type's force and set speed; 0: none).
+        gaps: keep each observation's gap [m] (privileged: the auxiliary gap head's target,
+            never part of an observation; ``Config.aux_gap``).
     """
 
     def __init__(
-        self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W), n_controls: int = 0
-    ):
+        self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W),
+        n_controls: int = 0, gaps: bool = False,
+    ):  # fmt: skip
         self.capacity, self.frame_stack, self.stack_stride = capacity, frame_stack, stack_stride
         self.frames = np.zeros((capacity, *frame_shape), np.uint8)
         self.speeds = np.zeros(capacity, np.float32)  # [m/s]
         self.controls = np.zeros((capacity, n_controls), np.float32)
+        self.gaps = np.full(capacity if gaps else 0, np.nan, np.float32)  # [m]
         self.pos = np.zeros(capacity, np.int32)  # step of the slot in its episode
         self.actions = np.zeros(capacity, np.uint8)
         self.rewards = np.zeros(capacity, np.float32)
@@ -97,11 +102,15 @@ class ReplayMemory:
         names: tuple[str, ...] = ("frames", "speeds", "pos", "actions", "rewards", "terminated", "truncated", "has_next")
         if self.controls.shape[1]:  # absent from the paper's memories and their files
             names += ("controls",)
+        if len(self.gaps):
+            names += ("gaps",)
         return {n: getattr(self, n) for n in names}
 
-    def _write(self, obs: dict[str, np.ndarray], pos: int) -> None:
+    def _write(self, obs: dict[str, np.ndarray], pos: int, gap: float = np.nan) -> None:
         j = self.total % self.capacity
         self.frames[j] = obs["frames"][-1]
+        if len(self.gaps):
+            self.gaps[j] = gap
         self.speeds[j] = float(obs["speeds"][-1])
         if self.controls.shape[1]:
             self.controls[j] = obs["controls"][-1]
@@ -116,19 +125,20 @@ class ReplayMemory:
         self._write(obs, self._warm)
         self._warm += 1
 
-    def start(self, obs: dict[str, np.ndarray]) -> None:
-        """Begin an episode with its first observation (after its :meth:`warm` frames, if any)."""
-        self._write(obs, self._warm)
+    def start(self, obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
+        """Begin an episode with its first observation (after its :meth:`warm` frames, if any),
+        and its gap [m] in a memory that keeps them."""
+        self._write(obs, self._warm, gap)
         self._warm = 0
 
-    def add(self, action: int, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray]) -> None:
-        """Record the transition from the newest slot, and the next observation."""
+    def add(self, action: int, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
+        """Record the transition from the newest slot, and the next observation (with its gap [m])."""
         assert self.total > 0, "start() an episode first"
         j = (self.total - 1) % self.capacity
         self.actions[j], self.rewards[j] = action, reward
         self.terminated[j], self.truncated[j] = terminated, truncated
         self.has_next[j] = True
-        self._write(next_obs, int(self.pos[j]) + 1)
+        self._write(next_obs, int(self.pos[j]) + 1, gap)
         self.transitions += 1
 
     def _stack_index(self, idx: np.ndarray) -> np.ndarray:
@@ -271,7 +281,7 @@ class ReplayMemory:
 
 def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> ReplaySamples:
     """One :class:`ReplaySamples` from the plans of one or more memories, gathered into ``buffer``."""
-    speeds, next_speeds, controls, next_controls, fields = [], [], [], [], []
+    speeds, next_speeds, controls, next_controls, gaps, fields = [], [], [], [], [], []
     start = 0
     for memory, plan in parts:
         end = start + len(plan.idx)
@@ -282,6 +292,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_speeds.append(v)
         next_controls.append(c)
         j = plan.idx % memory.capacity
+        gaps.append(memory.gaps[j] if len(memory.gaps) else np.full(len(j), np.nan, np.float32))
         fields.append((plan.idx, memory.actions[j].astype(np.int64), memory.rewards[j], plan.ns))
         start = end
 
@@ -304,6 +315,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_frames=buffer[1, :start],
         next_speeds=cat(next_speeds),
         next_controls=cat(next_controls),
+        gaps=cat(gaps),
     )
 
 

@@ -95,7 +95,7 @@ def train(
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
     learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval)
-    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.aux_gap > 0.0)
     state = LoopState(**{k: v for k, v in learner.saved.items() if k in LoopState.__dataclass_fields__})
     env = None
     try:
@@ -145,7 +145,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             obs, info = env.reset(options=options)
             for frame in info.get("preroll", ()):
                 memory.warm(frame)
-            memory.start(obs)
+            memory.start(obs, info["gap"])  # the gap: the auxiliary head's target, kept apart from obs
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
@@ -153,7 +153,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
                 decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
-                memory.add(stored, reward, terminated, truncated, obs)
+                memory.add(stored, reward, terminated, truncated, obs, info["gap"])
                 episode_return += reward
                 episode_len += 1
                 done = terminated or truncated
