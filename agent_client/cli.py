@@ -169,7 +169,8 @@ def drive(
     """Drive one episode with a controller over UDP and write the run log.
 
     The log has one row per control step: t,frame,v_host,v_lead,gap,accel,force,
-    collision,a_lead (SI units). Exits non-zero if the server is lost.
+    collision,a_lead (SI units), then gap_est for a DDQN model with a gap head
+    (vacc train --aux-gap). Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
     trace = load_lead(trajectory)

@@ -109,12 +109,14 @@ def drive_episode(
                 controller.warm(obs)
             obs = session.step(0.0)
         while True:
+            done = obs["terminated"] or obs["truncated"]
+            if done:  # no decision: the row without the controller's columns
+                runlog.write(obs)
             gaps.append(obs["gap"])
             collision = collision or obs["collision"]
             if on_step is not None:
                 on_step(obs)
-            if obs["terminated"] or obs["truncated"]:
-                runlog.write(obs)
+            if done:
                 break
             values: tuple[float, ...] = ()  # the controller's own columns for this row, once it decided
             try:

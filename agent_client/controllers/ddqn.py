@@ -83,19 +83,22 @@ class DDQNController:
         """The decision for a stacked observation (frames, speeds and, if observed, controls)."""
         return self.policy(stacked)
 
-    def gap_estimate(self, stacked: dict[str, np.ndarray]) -> float:
-        """The gap head's estimate [m] for a stacked observation (a network with the head)."""
+    def _q_and_gap(self, stacked: dict[str, np.ndarray]) -> tuple[torch.Tensor, float]:
+        """The outputs ``[A]`` and the gap head's estimate [m] for a stacked observation."""
         dev = next(self.q.parameters()).device
         controls = stacked.get("controls")
         with torch.inference_mode():
             c = torch.from_numpy(controls).to(dev)[None] if controls is not None else None
-            _, raw = self.q.q_and_gap(torch.from_numpy(stacked["frames"]).to(dev)[None], torch.from_numpy(stacked["speeds"]).to(dev)[None], c)
-        return float(QNetwork.gap_estimate(raw)[0])
+            q, raw = self.q.q_and_gap(torch.from_numpy(stacked["frames"]).to(dev)[None], torch.from_numpy(stacked["speeds"]).to(dev)[None], c)
+        return q[0], float(QNetwork.gap_estimate(raw)[0])
 
     def __call__(self, obs: dict[str, Any]) -> float:
         """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
         stacked = self.warm(obs)
-        d = self.act(stacked)
-        if self.log_columns:
-            self.log_values = (self.gap_estimate(stacked),)
+        if self.log_columns:  # one pass for the decision and the estimate
+            q, gap = self._q_and_gap(stacked)
+            d = self.policy.decide(q)
+            self.log_values = (gap,)
+        else:
+            d = self.act(stacked)
         return self.actions.force(d.action) if d.target is None else self.actions.force_toward(d.target)  # type: ignore[attr-defined]

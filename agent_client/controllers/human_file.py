@@ -294,6 +294,16 @@ class RecordingController:
     inner: Callable[[dict[str, Any]], float]
     recorder: HumanFileRecorder
 
+    @property
+    def log_columns(self) -> tuple[str, ...]:
+        """The wrapped controller's own log columns (vacc drive's run log)."""
+        return getattr(self.inner, "log_columns", ())
+
+    @property
+    def log_values(self) -> tuple[float, ...]:
+        """Their values at the last decision."""
+        return getattr(self.inner, "log_values", ())
+
     def reset(self) -> None:
         """Reset the wrapped controller."""
         reset = getattr(self.inner, "reset", None)

@@ -761,6 +761,9 @@ class _StreamsLoop:
         self.bar.update(self.step, self.epsilon(), recent, force=force, extra=extra)
 
 
+AUX_GAP_STREAMS = "--aux-gap needs the single-stream trainer (no --ray, --servers 1): the K-stream trainer stores no gaps"
+
+
 def train_distributed(
     cfg: Config,
     run_dir: str | Path,
@@ -801,7 +804,10 @@ def train_distributed(
         InputFileError: ``resume`` with a missing or bad checkpoint or replay file.
         RayMissingError: ``use_ray`` without Ray installed.
         ClientError: every actor died, or none delivered for ``STALL_TIMEOUT``.
+        ValueError: ``cfg.aux_gap`` (its streams store no gaps for the head to learn).
     """
+    if cfg.aux_gap > 0.0:
+        raise ValueError(AUX_GAP_STREAMS)
     if use_ray:
         import_ray()  # fail before any work if it is missing
     learner = Learner(cfg, run_dir, resume=resume, trainer="streams", server_args=server_args, on_eval=on_eval)

@@ -327,8 +327,8 @@ class Learner:
         the stored gaps is added, times that weight.
 
         Returns:
-            (loss, mean output of the stored actions, the gap head's loss or None) when
-            ``log_step`` is given.
+            (the TD or teacher loss without the gap head's, mean output of the stored
+            actions, the gap head's loss or None) when ``log_step`` is given.
         """
         cfg, dev = self.cfg, self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
@@ -342,10 +342,9 @@ class Learner:
             loss = F.cross_entropy(q_all, b.actions.to(dev), weight=self.label_weights)
         else:
             loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
-        if gap_loss is not None:
-            loss = loss + cfg.aux_gap * gap_loss
+        total = loss if gap_loss is None else loss + cfg.aux_gap * gap_loss
         self.optimizer.zero_grad()
-        loss.backward()
+        total.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
         self.optimizer.step()
         self.updates += 1

@@ -209,6 +209,13 @@ class Policy:
         with torch.inference_mode():
             c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
             out = self.q(torch.from_numpy(obs["frames"]).to(device)[None], torch.from_numpy(obs["speeds"]).to(device)[None], c)[0]
+        return self.decide(out)
+
+    def decide(self, out: torch.Tensor) -> Decision:
+        """The decision from the network's outputs ``[A]`` for one observation, computed
+        elsewhere (e.g. by :meth:`QNetwork.q_and_gap`); the same as :meth:`__call__`'s."""
+        if self.decision == "argmax":
+            return Decision(int(out.argmax().item()))
         out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
         action = int(out.argmax().item())
         if action == EMERGENCY_LEVEL:

@@ -97,11 +97,53 @@ def test_the_gap_loss_teaches_the_head_the_gap(tmp_path):
     learner.close()
 
 
-def test_config_checks_the_weight_and_the_trainer():
+def test_config_checks_the_weight_and_the_trainer(tmp_path):
+    from click.testing import CliRunner
+
+    from agent_client.rl.distributed import train_distributed
+    from vacc.cli import main
+
     with pytest.raises(ConfigError, match="aux_gap"):
         Config(aux_gap=-1.0)
     with pytest.raises(ConfigError, match="aux_gap"):
         Config(aux_gap=1.0, servers=2)
+    # --ray with one server passes the config, but its streams store no gaps either
+    result = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--aux-gap", "1", "--ray", "--out", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "--aux-gap needs the single-stream trainer" in result.output
+    with pytest.raises(ValueError, match="aux-gap"):
+        train_distributed(Config(aux_gap=1.0), tmp_path / "d", use_ray=True)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("decision", ["argmax", "mean"])
+def test_a_decision_from_the_heads_pass_is_the_policys_own(decision):
+    from agent_client.actions import make_action_type
+    from agent_client.rl.network import Policy
+
+    torch.manual_seed(0)
+    q = QNetwork(n_actions=21, n_controls=2, gap_head=True).eval()
+    levels = make_action_type("ramp-fine").levels if decision == "mean" else ()
+    policy = Policy(q, decision, levels)
+    frames, speeds = _batch(8)
+    controls = torch.zeros(8, 8, 2)
+    controls[:, :, 1] = 30.0
+    for i in range(8):
+        obs = {"frames": frames[i].numpy(), "speeds": speeds[i].numpy(), "controls": controls[i].numpy()}
+        with torch.inference_mode():
+            out, _ = q.q_and_gap(frames[i : i + 1], speeds[i : i + 1], controls[i : i + 1])
+        assert policy.decide(out[0]) == policy(obs)
+
+
+def test_a_recorded_drive_keeps_the_controllers_columns():
+    from agent_client.controllers.ddqn import DDQNController
+    from agent_client.controllers.human_file import RecordingController
+
+    ctl = DDQNController(QNetwork(gap_head=True), Config(aux_gap=1.0))
+    wrapped = RecordingController(ctl, None)  # type: ignore[arg-type]  # the recorder is not used here
+    assert wrapped.log_columns == ("gap_est",) and wrapped.log_values == ()
+    ctl.log_values = (12.5,)
+    assert wrapped.log_values == (12.5,)
+    assert RecordingController(lambda obs: 0.0, None).log_columns == ()  # type: ignore[arg-type]
 
 
 def test_a_run_with_the_head_trains_from_a_model_without_one_and_drives_logging_its_estimate(tmp_path):
@@ -125,7 +167,12 @@ def test_a_run_with_the_head_trains_from_a_model_without_one_and_drives_logging_
     train(cfg, tmp_path / "run", progress=False)
     q, saved = load_policy(tmp_path / "run" / "latest.pt")
     assert saved.aux_gap == 1.0 and q.gap_head is not None
-    torch.testing.assert_close(q.fc[0].weight, plain.fc[0].weight, rtol=0, atol=1.0)  # started from it, moved by training
+    # started from it (a few small updates since), not from a fresh initialisation
+    torch.manual_seed(1)
+    fresh = QNetwork()
+    for name in ("conv.0.weight", "fc.0.weight", "fc.2.weight"):
+        trained, start, other = q.state_dict()[name], plain.state_dict()[name], fresh.state_dict()[name]
+        assert (trained - start).abs().max() < 5e-3 < (other - start).abs().max(), name
     names = {r["name"] for r in csv.DictReader(open(tmp_path / "run" / "scalars.csv"))}
     assert "losses/gap_head" in names and "losses/td_loss" in names
     log = tmp_path / "drive.csv"
