@@ -202,6 +202,17 @@ LEAD_SCENARIOS: dict[str, LeadScenario] = {
             ),
         ),
         LeadScenario(
+            "closing",
+            "A slower car ahead, the host closing on it from a gap just above its stopping distance at full braking: only braking at once, and hard, stops in time.",
+            "Euro NCAP CCRm (moving target) met late, as after a missed target; the camera's near field (docs/scenarios.md)",
+            40.0,
+            (
+                Param("v_lead", 2.0, 15.0, "m/s", "lead's constant speed"),
+                Param("closing_speed", 3.0, 14.0, "m/s", "host's initial speed minus the lead's"),
+                Param("margin", 1.15, 1.6, "", "initial gap as a multiple of stopping_gap(closing_speed)"),
+            ),
+        ),
+        LeadScenario(
             "catch-up",
             "The lead drives much faster than the host at the start; the gap opens before the host catches up.",
             "ISO 15622 target approach from behind (free driving into following)",

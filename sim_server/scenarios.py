@@ -113,6 +113,10 @@ def build(name: str, rng: np.random.Generator, dt: float) -> LeadEpisode:
         gap = _draw(spec, rng, "gap", low=stopping_gap(deficit))
         p = {"v_host": v_host, "speed_deficit": deficit, "gap": gap}
         return LeadEpisode(ramp_profile(v_host - deficit, (), dt, T), v_host, gap, p)
+    if name == "closing":
+        p = {k: _draw(spec, rng, k) for k in ("v_lead", "closing_speed", "margin")}
+        gap = p["margin"] * stopping_gap(p["closing_speed"])
+        return LeadEpisode(ramp_profile(p["v_lead"], (), dt, T), p["v_lead"] + p["closing_speed"], gap, p)
     if name == "catch-up":
         p = {k: _draw(spec, rng, k) for k in ("v_lead", "speed_deficit", "gap")}
         return LeadEpisode(ramp_profile(p["v_lead"], (), dt, T), p["v_lead"] - p["speed_deficit"], p["gap"], p)

@@ -110,6 +110,21 @@ def test_a_car_cutting_in_can_be_fallen_back_from_at_full_brake(seed):
 
 
 @pytest.mark.parametrize("seed", range(10))
+def test_a_slower_car_met_late_can_be_stopped_for_only_by_braking_at_once(seed):
+    spec = LEAD_SCENARIOS["closing"]
+    s0 = World().reset("ev", seed, "closing")
+    closing = s0.v_host - s0.v_lead
+    assert 0.0 < s0.v_lead < s0.v_host
+    assert spec.param("margin").low * stopping_gap(closing) <= s0.gap + 1e-9 <= spec.param("margin").high * stopping_gap(closing) + 1e-9
+    # Full brake after one control period: no collision, at least the margin left.
+    states = drive(World(), [0.0] + [-1.0] * 60, scenario="ev", seed=seed, trajectory="closing")
+    assert not any(s.collision for s in states) and min(s.gap for s in states) >= STOP_MARGIN - 0.2
+    # Coasting into it for two seconds first collides: the start leaves no room to wait.
+    states = drive(World(), [0.0] * 20 + [-1.0] * 60, scenario="ev", seed=seed, trajectory="closing")
+    assert any(s.collision for s in states) or min(s.gap for s in states) < STOP_MARGIN
+
+
+@pytest.mark.parametrize("seed", range(10))
 def test_braking_lead_can_be_stopped_for_by_braking_when_it_does(seed):
     world = World()
     obs = world.reset("ice", seed, "brake-stop")
