@@ -201,10 +201,11 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     if ray_address is not None and not use_ray:
         raise click.UsageError("--ray-address needs --ray")
     distributed = use_ray or cfg.servers > 1
-    if distributed and cfg.aux_gap > 0.0:
-        from agent_client.rl.distributed import AUX_GAP_STREAMS
+    if distributed:
+        from agent_client.rl.distributed import single_stream_only
 
-        raise click.UsageError(AUX_GAP_STREAMS)
+        if (why := single_stream_only(cfg)) is not None:
+            raise click.UsageError(why)
     run = Path(out)
     if resume and overwrite:
         raise click.UsageError("--resume continues the run in --out, --overwrite removes it: give one of them")

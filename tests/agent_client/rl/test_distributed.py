@@ -26,7 +26,7 @@ from proctree import (
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config
-from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, train_distributed
+from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, single_stream_only, train_distributed
 from agent_client.rl.replay import ReplayMemory, StreamReplay
 from agent_client.rl.train import train
 from vacc.cli import main
@@ -164,6 +164,23 @@ def test_servers_2_trains_without_ray_and_ray_flag_says_how_to_install(tmp_path,
     assert result.exit_code == 1
     assert RAY_INSTALL_HINT in result.output and "pip install 'vacc[ray]'" in result.output
     assert "Traceback" not in result.output and not (tmp_path / "ray").exists()
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        (["--preroll"], "--preroll needs the single-stream trainer"),
+        (["--action", "ramp", "--teacher", "acc-55"], "--teacher acc-55, --action ramp need the single-stream trainer"),
+    ],
+)
+def test_ray_with_one_server_refuses_what_only_the_single_stream_trainer_does(tmp_path, options, words):
+    # Config refuses these with servers > 1 only; --ray --servers 1 also runs the K-stream trainer.
+    result = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--ray", *options, "--out", str(tmp_path / "r")])
+    assert result.exit_code == 2 and words in result.output, result.output
+    with pytest.raises(ValueError, match="starts its episodes cold"):
+        train_distributed(Config(preroll=True), tmp_path / "d", use_ray=True)
+    assert not (tmp_path / "r").exists() and not (tmp_path / "d").exists()
+    assert single_stream_only(Config()) is None
 
 
 def test_a_killed_local_actor_is_restarted_and_training_goes_on(tmp_path):
