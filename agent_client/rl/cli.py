@@ -26,7 +26,7 @@ from agent_client.actions import ACTION_TYPES
 from agent_client.errors import ClientError, InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
-from agent_client.rl.config import DECISIONS, SCHEDULES, TEACHERS, Config, ConfigError, config_from
+from agent_client.rl.config import DECISIONS, SCHEDULES, TEACHERS, Config, ConfigError, config_from, single_stream_only
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]
@@ -201,11 +201,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     if ray_address is not None and not use_ray:
         raise click.UsageError("--ray-address needs --ray")
     distributed = use_ray or cfg.servers > 1
-    if distributed:
-        from agent_client.rl.distributed import single_stream_only
-
-        if (why := single_stream_only(cfg)) is not None:
-            raise click.UsageError(why)
+    if distributed and (needs := single_stream_only(cfg)) is not None:
+        raise click.BadParameter(needs[1], param_hint=option_name(needs[0]))
     run = Path(out)
     if resume and overwrite:
         raise click.UsageError("--resume continues the run in --out, --overwrite removes it: give one of them")

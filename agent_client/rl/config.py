@@ -49,6 +49,36 @@ class ConfigError(ValueError):
         self.field = field
 
 
+def single_stream_only(cfg: Config) -> tuple[str, str] | None:
+    """What in ``cfg`` only the single-stream trainer honours: (the first such field, a
+    one-line message naming every one), or None.
+
+    The K-stream trainer (``servers > 1``, or ``--ray`` with any number of servers) runs
+    Double DQN over the force levels on random leads, with cold starts. Config refuses
+    these with ``servers > 1``; the CLI and ``train_distributed`` also with ``--ray``.
+    """
+    found = [
+        (field, option, reason)
+        for wanted, field, option, reason in (
+            (cfg.teacher != "none", "teacher", f"--teacher {cfg.teacher}", "labels no actions"),
+            (cfg.aux_gap > 0.0, "aux_gap", f"--aux-gap {cfg.aux_gap:g}", "stores no gaps"),
+            (cfg.preroll, "preroll", "--preroll", "starts its episodes cold"),
+            (cfg.action != "levels", "action", f"--action {cfg.action}", "stores no controls"),
+            (tuple(cfg.train_trajectories) != (RANDOM,), "train_trajectories", f"--train-trajectories {','.join(cfg.train_trajectories)}", "drives random leads only"),
+        )
+        if wanted
+    ]  # fmt: skip
+    if not found:
+        return None
+
+    def listed(items: list[str]) -> str:
+        return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} and {items[-1]}"
+
+    options, reasons = listed([o for _, o, _ in found]), listed([r for *_, r in found])
+    verb = "needs" if len(found) == 1 else "need"
+    return found[0][0], f"{options} {verb} the single-stream trainer (servers=1, without --ray): the K-stream trainer {reasons}"
+
+
 @dataclass(frozen=True)
 class Config:
     """Every setting of a training run. The CLI only fills this in."""
@@ -230,8 +260,6 @@ class Config:
             raise bad("crash_reward", f"must be in [{CRASH_REWARD_RANGE[0]:g}, {CRASH_REWARD_RANGE[1]:g}], got {self.crash_reward}")
         if self.teacher not in TEACHERS:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
-        if self.teacher != "none" and self.servers != 1:
-            raise bad("teacher", "a teacher needs servers=1")
         if not self.teacher_brake >= 0.0:
             raise bad("teacher_brake", "must be >= 0")
         if not self.brake_weight > 0.0:
@@ -242,8 +270,6 @@ class Config:
             raise bad("teacher_steps", "must be >= 1")
         if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):
             raise bad("aux_gap", f"must be finite and >= 0, got {self.aux_gap}")
-        if self.aux_gap > 0.0 and self.servers != 1:
-            raise bad("aux_gap", "needs servers=1 (the K-stream trainer stores no gaps)")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
         if self.decision not in DECISIONS:
@@ -252,10 +278,6 @@ class Config:
             raise bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
         if not self.decision_temperature > 0.0:
             raise bad("decision_temperature", "must be > 0")
-        if self.preroll and self.servers != 1:
-            raise bad("preroll", "a pre-roll needs servers=1 (the K-stream trainer starts its episodes cold)")
-        if self.action != "levels" and self.servers != 1:
-            raise bad("action", f"{self.action!r} needs servers=1 (the K-stream trainer stores no controls)")
         if not self.train_trajectories:
             raise bad("train_trajectories", "must name at least one trajectory")
         for name in self.train_trajectories:
@@ -263,6 +285,8 @@ class Config:
                 raise bad("train_trajectories", f"{name!r} is not {RANDOM!r} or a lead scenario ({', '.join(LEAD_SCENARIOS)})")
         if self.schedule not in SCHEDULES:
             raise bad("schedule", f"{self.schedule!r} is not one of {SCHEDULES}")
+        if self.servers != 1 and (needs := single_stream_only(self)) is not None:
+            raise ConfigError(*needs)
         for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every",
                      "frame_stack", "stack_stride", "servers", "weight_sync_every", "actor_batch", "torch_threads",
                      "exploration_steps", "checkpoint_every", "log_every"):  # fmt: skip

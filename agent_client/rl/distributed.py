@@ -110,7 +110,7 @@ import torch
 from torch.nn.utils import vector_to_parameters
 
 from agent_client.errors import ClientError
-from agent_client.rl.config import Config
+from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.learner import SESSION_TIMEOUT, STOP, Learner
 from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action, linear_schedule
 from agent_client.rl.replay import StreamReplay
@@ -761,25 +761,6 @@ class _StreamsLoop:
         self.bar.update(self.step, self.epsilon(), recent, force=force, extra=extra)
 
 
-def single_stream_only(cfg: Config) -> str | None:
-    """Why ``cfg`` needs the single-stream trainer, or None if the K-stream trainer can run it.
-
-    Config refuses these options with ``servers > 1``; this also covers ``--ray --servers 1``,
-    which runs the K-stream trainer with one stream.
-    """
-    why = [
-        (cfg.teacher != "none", f"--teacher {cfg.teacher}", "labels no actions"),
-        (cfg.aux_gap > 0.0, "--aux-gap", "stores no gaps"),
-        (cfg.preroll, "--preroll", "starts its episodes cold"),
-        (cfg.action != "levels", f"--action {cfg.action}", "stores no controls"),
-    ]
-    found = [(option, reason) for wanted, option, reason in why if wanted]
-    if not found:
-        return None
-    options = ", ".join(option for option, _ in found)
-    return f"{options} need{'s' if len(found) == 1 else ''} the single-stream trainer (no --ray, --servers 1): the K-stream trainer {'; '.join(r for _, r in found)}"
-
-
 def train_distributed(
     cfg: Config,
     run_dir: str | Path,
@@ -820,10 +801,10 @@ def train_distributed(
         InputFileError: ``resume`` with a missing or bad checkpoint or replay file.
         RayMissingError: ``use_ray`` without Ray installed.
         ClientError: every actor died, or none delivered for ``STALL_TIMEOUT``.
-        ValueError: an option only the single-stream trainer honours (:func:`single_stream_only`).
+        ValueError: an option only the single-stream trainer honours (:func:`~agent_client.rl.config.single_stream_only`).
     """
-    if (why := single_stream_only(cfg)) is not None:
-        raise ValueError(why)
+    if (needs := single_stream_only(cfg)) is not None:
+        raise ValueError(needs[1])
     if use_ray:
         import_ray()  # fail before any work if it is missing
     learner = Learner(cfg, run_dir, resume=resume, trainer="streams", server_args=server_args, on_eval=on_eval)

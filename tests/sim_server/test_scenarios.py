@@ -91,6 +91,9 @@ def test_stopping_is_possible_over_the_whole_documented_ranges():
     assert stopping_gap(slow.param("v_host").high - slow.param("v_lead").low) <= slow.param("gap").high
     cut = LEAD_SCENARIOS["cut-in"]
     assert stopping_gap(cut.param("speed_deficit").high) <= cut.param("gap").high
+    closing = LEAD_SCENARIOS["closing"]
+    assert closing.param("margin").low > 1.0
+    assert closing.param("v_lead").high + closing.param("closing_speed").high <= DEFAULT_SET_SPEED
     for seed in range(50):
         for name in ("slow-lead", "cut-in"):
             ep = S.build(name, np.random.default_rng(seed), DT)
@@ -119,8 +122,8 @@ def test_a_slower_car_met_late_can_be_stopped_for_only_by_braking_at_once(seed):
     # Full brake after one control period: no collision, at least the margin left.
     states = drive(World(), [0.0] + [-1.0] * 60, scenario="ev", seed=seed, trajectory="closing")
     assert not any(s.collision for s in states) and min(s.gap for s in states) >= STOP_MARGIN - 0.2
-    # Coasting into it for two seconds first collides: the start leaves no room to wait.
-    states = drive(World(), [0.0] * 20 + [-1.0] * 60, scenario="ev", seed=seed, trajectory="closing")
+    # Coasting into it for 1.2 s first collides or ends inside the margin: no room to wait.
+    states = drive(World(), [0.0] * 12 + [-1.0] * 60, scenario="ev", seed=seed, trajectory="closing")
     assert any(s.collision for s in states) or min(s.gap for s in states) < STOP_MARGIN
 
 
@@ -145,6 +148,10 @@ def test_scenario_shapes():
     assert ep.v_lead[-1] == pytest.approx(ep.params["v_cruise"] - ep.params["speed_drop"])
     ep = S.build("cut-in", rng(0), DT)
     assert np.ptp(ep.v_lead) == 0.0 and ep.v_host - ep.v_lead[0] == pytest.approx(ep.params["speed_deficit"])
+    ep = S.build("closing", rng(0), DT)
+    p = ep.params
+    assert np.ptp(ep.v_lead) == 0.0 and ep.v_host - ep.v_lead[0] == pytest.approx(p["closing_speed"])
+    assert ep.gap == pytest.approx(p["margin"] * stopping_gap(p["closing_speed"]))
     ep = S.build("catch-up", rng(0), DT)
     assert ep.v_lead[0] - ep.v_host == pytest.approx(ep.params["speed_deficit"]) and np.ptp(ep.v_lead) == 0.0
     ep = S.build("constant", rng(0), DT)

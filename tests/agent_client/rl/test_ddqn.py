@@ -477,7 +477,7 @@ def test_a_failed_checkpoint_removes_the_replay_it_wrote_and_the_last_one_resume
 def test_config_rejects_bad_values():
     with pytest.raises(ValueError, match="reward"):
         Config(reward="speed")
-    with pytest.raises(ValueError, match="a pre-roll needs servers=1"):
+    with pytest.raises(ValueError, match="--preroll needs the single-stream trainer"):
         Config(preroll=True, servers=2)
     with pytest.raises(ValueError, match="scenario"):
         Config(scenario="moon")

@@ -26,7 +26,8 @@ from proctree import (
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config
-from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, single_stream_only, train_distributed
+from agent_client.rl.config import single_stream_only
+from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, train_distributed
 from agent_client.rl.replay import ReplayMemory, StreamReplay
 from agent_client.rl.train import train
 from vacc.cli import main
@@ -170,7 +171,8 @@ def test_servers_2_trains_without_ray_and_ray_flag_says_how_to_install(tmp_path,
     ("options", "words"),
     [
         (["--preroll"], "--preroll needs the single-stream trainer"),
-        (["--action", "ramp", "--teacher", "acc-55"], "--teacher acc-55, --action ramp need the single-stream trainer"),
+        (["--action", "ramp", "--teacher", "acc-55"], "--teacher acc-55 and --action ramp need the single-stream trainer"),
+        (["--train-trajectories", "random,closing"], "--train-trajectories random,closing needs the single-stream trainer"),
     ],
 )
 def test_ray_with_one_server_refuses_what_only_the_single_stream_trainer_does(tmp_path, options, words):
@@ -181,6 +183,9 @@ def test_ray_with_one_server_refuses_what_only_the_single_stream_trainer_does(tm
         train_distributed(Config(preroll=True), tmp_path / "d", use_ray=True)
     assert not (tmp_path / "r").exists() and not (tmp_path / "d").exists()
     assert single_stream_only(Config()) is None
+    # --servers K says the same, naming every option, at the first one's flag
+    result = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--servers", "2", "--preroll", "--aux-gap", "1", "--out", str(tmp_path / "k")])
+    assert result.exit_code == 2 and "--aux-gap" in result.output and "--aux-gap 1 and --preroll need the single-stream trainer" in " ".join(result.output.split())
 
 
 def test_a_killed_local_actor_is_restarted_and_training_goes_on(tmp_path):

@@ -105,11 +105,12 @@ def test_config_checks_the_weight_and_the_trainer(tmp_path):
 
     with pytest.raises(ConfigError, match="aux_gap"):
         Config(aux_gap=-1.0)
-    with pytest.raises(ConfigError, match="aux_gap"):
+    with pytest.raises(ConfigError, match="--aux-gap 1 needs the single-stream trainer") as e:
         Config(aux_gap=1.0, servers=2)
+    assert e.value.field == "aux_gap"
     # --ray with one server passes the config, but its streams store no gaps either
     result = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--aux-gap", "1", "--ray", "--out", str(tmp_path / "r")])
-    assert result.exit_code == 2 and "--aux-gap needs the single-stream trainer" in result.output
+    assert result.exit_code == 2 and "--aux-gap 1 needs the single-stream trainer" in result.output
     with pytest.raises(ValueError, match="aux-gap"):
         train_distributed(Config(aux_gap=1.0), tmp_path / "d", use_ray=True)
     assert not (tmp_path / "r").exists() and not (tmp_path / "d").exists()
