@@ -26,7 +26,15 @@ from agent_client.actions import ACTION_TYPES
 from agent_client.errors import ClientError, InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
-from agent_client.rl.config import DECISIONS, SCHEDULES, TEACHERS, Config, ConfigError, config_from, single_stream_only
+from agent_client.rl.config import (
+    DECISIONS,
+    SCHEDULES,
+    TEACHERS,
+    Config,
+    ConfigError,
+    config_from,
+    single_stream_only,
+)
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]

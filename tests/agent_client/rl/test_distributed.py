@@ -25,8 +25,7 @@ from proctree import (
 
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
-from agent_client.rl.config import Config
-from agent_client.rl.config import single_stream_only
+from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.distributed import RAY_INSTALL_HINT, StreamActor, train_distributed
 from agent_client.rl.replay import ReplayMemory, StreamReplay
 from agent_client.rl.train import train
