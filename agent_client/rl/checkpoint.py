@@ -49,6 +49,8 @@ __all__ = [
     "checkpoint_config",
     "digest",
     "with_decision",
+    "average_policies",
+    "POLICY_FIELDS",
 ]
 
 CHECKPOINT_FORMAT = "vacc-ddqn"
@@ -267,6 +269,48 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     return cfg
 
 
+POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "preroll", "speed_scale",
+                 "set_speed", "decision", "decision_temperature")
+"""The settings that decide what a policy sees and how it acts: averaged policies must agree on them."""
+
+
+def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
+    """Write the element-wise mean of the weights of the policies ``srcs`` to the new file ``dst``
+    (a "model soup", Wortsman et al. 2022: fine-tunes of one network from the same start average
+    into one network whose failures are not the union of theirs). Settings are the first's.
+
+    Returns:
+        The average's config.
+
+    Raises:
+        InputFileError: fewer than two sources, one unreadable, one that differs from the first in
+            a :data:`POLICY_FIELDS` setting or in its layers, or ``dst`` exists.
+        CheckpointWriteError: the write failed.
+    """
+    if len(srcs) < 2:
+        raise InputFileError(f"{dst}: give at least two policies to average ({len(srcs)} given)")
+    if Path(dst).exists():
+        raise InputFileError(f"{dst}: exists; give a new file for the average")
+    first = read_checkpoint(srcs[0])
+    cfg = checkpoint_config(first, srcs[0])
+    total = {k: v.detach().to(torch.float64).clone() for k, v in first["model"].items()}
+    for src in srcs[1:]:
+        ckpt = read_checkpoint(src)
+        other = checkpoint_config(ckpt, src)
+        for name in POLICY_FIELDS:
+            if getattr(other, name) != getattr(cfg, name):
+                raise InputFileError(f"{src}: {name} is {getattr(other, name)!r}, {srcs[0]}'s is {getattr(cfg, name)!r}; only policies that see and act alike average")
+        shapes = {k: tuple(v.shape) for k, v in ckpt["model"].items()}
+        if shapes != {k: tuple(v.shape) for k, v in total.items()}:
+            raise InputFileError(f"{src}: its layers differ from {srcs[0]}'s; only one network's weights average")
+        for k, v in ckpt["model"].items():
+            total[k] += v.to(torch.float64)
+    q = QNetwork.of(cfg)
+    load_weights(q, {k: (v / len(srcs)).to(first["model"][k].dtype) for k, v in total.items()}, srcs[0])
+    save_policy(q, cfg, dst, {"step": int(first.get("extra", {}).get("step", 0)), "average_of": [str(s) for s in srcs]})
+    return cfg
+
+
 def export_policy(src: str | Path, dst: str | Path) -> int:
     """Write the weights and settings of the checkpoint ``src`` (a training run's ``latest.pt``,
     or a policy) as a policy-only file ``dst``, as the trainer writes ``best.pt``.
@@ -304,11 +348,17 @@ def _main(argv: list[str]) -> None:
     pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
     pol.add_argument("src", metavar="SRC.pt")
     pol.add_argument("dst", metavar="DST.pt", help="a new file")
+    avg = sub.add_parser("average", help="Write the mean of the weights of policies fine-tuned from one start (a model soup).")
+    avg.add_argument("srcs", nargs="+", metavar="SRC.pt", help="two or more policies that see and act alike")
+    avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
     a = ap.parse_args(argv)
     try:
         if a.command == "upgrade":
             for name in a.paths:
                 print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
+        elif a.command == "average":
+            average_policies(a.srcs, a.out)
+            print(f"{a.out}: the mean of {len(a.srcs)} policies")
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
@@ -318,7 +368,7 @@ def _main(argv: list[str]) -> None:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
 
 
-if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy} ...
+if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy,average} ...
     import sys
 
     _main(sys.argv[1:])

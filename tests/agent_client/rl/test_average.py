@@ -1,0 +1,71 @@
+"""Averaging policies (a model soup): the mean of the weights of fine-tunes from one start,
+refused for policies that see or act differently; nothing saved is overwritten."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from agent_client.errors import InputFileError
+from agent_client.rl.checkpoint import average_policies, load_policy, save_policy
+from agent_client.rl.config import Config
+from agent_client.rl.network import QNetwork
+
+
+def _policies(tmp_path, n: int, cfg: Config | None = None) -> list:
+    cfg = cfg or Config(zoom=2)
+    paths = []
+    for i in range(n):
+        torch.manual_seed(i)
+        path = tmp_path / f"p{i}.pt"
+        save_policy(QNetwork.of(cfg), cfg, path, {"step": 1000 * (i + 1)})
+        paths.append(path)
+    return paths
+
+
+def test_the_average_is_the_elementwise_mean_of_the_weights_and_keeps_the_sources(tmp_path):
+    srcs = _policies(tmp_path, 3)
+    before = [p.read_bytes() for p in srcs]
+    cfg = average_policies(srcs, tmp_path / "soup.pt")
+    assert cfg.zoom == 2
+    soup, soup_cfg = load_policy(tmp_path / "soup.pt")
+    assert soup_cfg == load_policy(srcs[0])[1]
+    nets = [load_policy(p)[0].state_dict() for p in srcs]
+    for key, value in soup.state_dict().items():
+        by_hand = (nets[0][key].double() + nets[1][key].double() + nets[2][key].double()) / 3
+        torch.testing.assert_close(value, by_hand.float(), rtol=0, atol=1e-7)
+    assert [p.read_bytes() for p in srcs] == before
+
+
+def test_policies_that_see_or_act_differently_or_a_lone_one_or_an_existing_file_are_refused(tmp_path):
+    a, b = _policies(tmp_path, 2)
+    other = tmp_path / "zoom1.pt"
+    save_policy(QNetwork.of(Config(zoom=1)), Config(zoom=1), other)
+    with pytest.raises(InputFileError, match="zoom is 1"):
+        average_policies([a, other], tmp_path / "x.pt")
+    steps = tmp_path / "steps.pt"
+    save_policy(QNetwork.of(Config(zoom=2, action="steps")), Config(zoom=2, action="steps"), steps)
+    with pytest.raises(InputFileError, match="action is 'steps'"):
+        average_policies([a, steps], tmp_path / "x.pt")
+    with pytest.raises(InputFileError, match="at least two"):
+        average_policies([a], tmp_path / "x.pt")
+    assert not (tmp_path / "x.pt").exists()
+    kept = b.read_bytes()
+    with pytest.raises(InputFileError, match="exists"):
+        average_policies([a, tmp_path / "p0.pt"], b)
+    assert b.read_bytes() == kept
+
+
+def test_the_command_line_averages_and_says_what_was_wrong_in_one_line(tmp_path):
+    a, b = _policies(tmp_path, 2)
+    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "average"]
+    done = subprocess.run([*cli, str(a), str(b), "--out", str(tmp_path / "soup.pt")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "the mean of 2 policies" in done.stdout
+    assert load_policy(tmp_path / "soup.pt")[1].zoom == 2
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    done = subprocess.run([*cli, str(a), str(tmp_path / "junk.pt"), "--out", str(tmp_path / "y.pt")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "junk.pt: not a checkpoint" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "y.pt").exists()
