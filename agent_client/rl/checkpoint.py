@@ -269,22 +269,25 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     return cfg
 
 
-POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "preroll", "speed_scale",
-                 "set_speed", "decision", "decision_temperature")
-"""The settings that decide what a policy sees and how it acts: averaged policies must agree on them."""
+POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "speed_scale", "decision",
+                 "decision_temperature")
+"""The settings that decide what a policy sees and how it acts: averaged policies must agree on them.
+(The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
 
 def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
     """Write the element-wise mean of the weights of the policies ``srcs`` to the new file ``dst``
     (a "model soup", Wortsman et al. 2022: fine-tunes of one network from the same start average
-    into one network whose failures are not the union of theirs). Settings are the first's.
+    into one network whose failures are not the union of theirs). Settings are the first's; the
+    copy records each source's path, step and digest (``extra["average_of"]``).
 
     Returns:
         The average's config.
 
     Raises:
-        InputFileError: fewer than two sources, one unreadable, one that differs from the first in
-            a :data:`POLICY_FIELDS` setting or in its layers, or ``dst`` exists.
+        InputFileError: fewer than two sources, one given twice, one unreadable, one that differs
+            from the first in a :data:`POLICY_FIELDS` setting, in its layers or in a non-float
+            tensor, or ``dst`` exists.
         CheckpointWriteError: the write failed.
     """
     if len(srcs) < 2:
@@ -293,21 +296,30 @@ def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
         raise InputFileError(f"{dst}: exists; give a new file for the average")
     first = read_checkpoint(srcs[0])
     cfg = checkpoint_config(first, srcs[0])
-    total = {k: v.detach().to(torch.float64).clone() for k, v in first["model"].items()}
+    floats = {k for k, v in first["model"].items() if v.is_floating_point()}
+    total = {k: v.detach().to(torch.float64).clone() for k, v in first["model"].items() if k in floats}
+    sources = [{"path": str(srcs[0]), "step": int(first.get("extra", {}).get("step", 0)), "sha256": first.get("sha256")}]
     for src in srcs[1:]:
         ckpt = read_checkpoint(src)
+        if ckpt.get("sha256") is not None and ckpt.get("sha256") in {x["sha256"] for x in sources}:
+            raise InputFileError(f"{src}: the same policy is given twice; each source counts once")
         other = checkpoint_config(ckpt, src)
         for name in POLICY_FIELDS:
             if getattr(other, name) != getattr(cfg, name):
                 raise InputFileError(f"{src}: {name} is {getattr(other, name)!r}, {srcs[0]}'s is {getattr(cfg, name)!r}; only policies that see and act alike average")
-        shapes = {k: tuple(v.shape) for k, v in ckpt["model"].items()}
-        if shapes != {k: tuple(v.shape) for k, v in total.items()}:
+        model = ckpt["model"]
+        if {k: tuple(v.shape) for k, v in model.items()} != {k: tuple(v.shape) for k, v in first["model"].items()}:
             raise InputFileError(f"{src}: its layers differ from {srcs[0]}'s; only one network's weights average")
-        for k, v in ckpt["model"].items():
-            total[k] += v.to(torch.float64)
+        for k, v in model.items():
+            if k in floats:
+                total[k] += v.to(torch.float64)
+            elif not torch.equal(v, first["model"][k]):  # counters and the like have no mean
+                raise InputFileError(f"{src}: its {k} differs from {srcs[0]}'s and is not a float tensor to average")
+        sources.append({"path": str(src), "step": int(ckpt.get("extra", {}).get("step", 0)), "sha256": ckpt.get("sha256")})
+    state = {k: (total[k] / len(srcs)).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
     q = QNetwork.of(cfg)
-    load_weights(q, {k: (v / len(srcs)).to(first["model"][k].dtype) for k, v in total.items()}, srcs[0])
-    save_policy(q, cfg, dst, {"step": int(first.get("extra", {}).get("step", 0)), "average_of": [str(s) for s in srcs]})
+    load_weights(q, state, srcs[0])
+    save_policy(q, cfg, dst, {"step": sources[0]["step"], "average_of": sources})
     return cfg
 
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from agent_client.errors import InputFileError
-from agent_client.rl.checkpoint import average_policies, load_policy, save_policy
+from agent_client.rl.checkpoint import average_policies, load_policy, read_checkpoint, save_policy
 from agent_client.rl.config import Config
 from agent_client.rl.network import QNetwork
 
@@ -38,18 +38,27 @@ def test_the_average_is_the_elementwise_mean_of_the_weights_and_keeps_the_source
         by_hand = (nets[0][key].double() + nets[1][key].double() + nets[2][key].double()) / 3
         torch.testing.assert_close(value, by_hand.float(), rtol=0, atol=1e-7)
     assert [p.read_bytes() for p in srcs] == before
+    recorded = read_checkpoint(tmp_path / "soup.pt")["extra"]["average_of"]
+    assert [(r["path"], r["step"]) for r in recorded] == [(str(p), 1000 * (i + 1)) for i, p in enumerate(srcs)]
+    assert [r["sha256"] for r in recorded] == [read_checkpoint(p)["sha256"] for p in srcs]
 
 
 def test_policies_that_see_or_act_differently_or_a_lone_one_or_an_existing_file_are_refused(tmp_path):
     a, b = _policies(tmp_path, 2)
     other = tmp_path / "zoom1.pt"
     save_policy(QNetwork.of(Config(zoom=1)), Config(zoom=1), other)
-    with pytest.raises(InputFileError, match="zoom is 1"):
+    with pytest.raises(InputFileError, match=r"zoom1\.pt: zoom is 1, .*p0\.pt's is 2"):
         average_policies([a, other], tmp_path / "x.pt")
     steps = tmp_path / "steps.pt"
     save_policy(QNetwork.of(Config(zoom=2, action="steps")), Config(zoom=2, action="steps"), steps)
     with pytest.raises(InputFileError, match="action is 'steps'"):
         average_policies([a, steps], tmp_path / "x.pt")
+    gap_head = tmp_path / "aux.pt"
+    save_policy(QNetwork.of(Config(zoom=2, aux_gap=0.1)), Config(zoom=2, aux_gap=0.1), gap_head)
+    with pytest.raises(InputFileError, match=r"aux\.pt: its layers differ from .*p0\.pt"):
+        average_policies([a, gap_head], tmp_path / "x.pt")
+    with pytest.raises(InputFileError, match=r"p0\.pt: the same policy is given twice"):
+        average_policies([a, b, a], tmp_path / "x.pt")
     with pytest.raises(InputFileError, match="at least two"):
         average_policies([a], tmp_path / "x.pt")
     assert not (tmp_path / "x.pt").exists()
