@@ -275,6 +275,11 @@ POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "s
 (The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
 
+def _source(path: str | Path, ckpt: dict[str, Any]) -> dict[str, Any]:
+    """What an average records of one of its sources."""
+    return {"path": str(path), "step": int(ckpt.get("extra", {}).get("step", 0)), "sha256": ckpt.get("sha256")}
+
+
 def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
     """Write the element-wise mean of the weights of the policies ``srcs`` to the new file ``dst``
     (a "model soup", Wortsman et al. 2022: fine-tunes of one network from the same start average
@@ -298,7 +303,7 @@ def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
     cfg = checkpoint_config(first, srcs[0])
     floats = {k for k, v in first["model"].items() if v.is_floating_point()}
     total = {k: v.detach().to(torch.float64).clone() for k, v in first["model"].items() if k in floats}
-    sources = [{"path": str(srcs[0]), "step": int(first.get("extra", {}).get("step", 0)), "sha256": first.get("sha256")}]
+    sources = [_source(srcs[0], first)]
     for src in srcs[1:]:
         ckpt = read_checkpoint(src)
         if ckpt.get("sha256") is not None and ckpt.get("sha256") in {x["sha256"] for x in sources}:
@@ -315,7 +320,7 @@ def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
                 total[k] += v.to(torch.float64)
             elif not torch.equal(v, first["model"][k]):  # counters and the like have no mean
                 raise InputFileError(f"{src}: its {k} differs from {srcs[0]}'s and is not a float tensor to average")
-        sources.append({"path": str(src), "step": int(ckpt.get("extra", {}).get("step", 0)), "sha256": ckpt.get("sha256")})
+        sources.append(_source(src, ckpt))
     state = {k: (total[k] / len(srcs)).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
     q = QNetwork.of(cfg)
     load_weights(q, state, srcs[0])
