@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import errno
 import hashlib
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -275,16 +276,29 @@ POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "s
 (The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
 
-def _source(path: str | Path, ckpt: dict[str, Any]) -> dict[str, Any]:
-    """What an average records of one of its sources."""
-    return {"path": str(path), "step": int(ckpt.get("extra", {}).get("step", 0)), "sha256": ckpt.get("sha256")}
+def _source(path: str | Path, ckpt: dict[str, Any], share: float) -> dict[str, Any]:
+    """What an average records of one of its sources (``share``: its weight over the sum)."""
+    return {"path": str(path), "step": int(ckpt.get("extra", {}).get("step", 0)), "sha256": ckpt.get("sha256"),
+            "share": share}
 
 
-def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
+def _soup_weights(srcs: list[str | Path], weights: list[float] | None, dst: str | Path) -> list[float]:
+    """The sources' weights in the average, checked (1 each when ``weights`` is None)."""
+    if weights is None:
+        return [1.0] * len(srcs)
+    if len(weights) != len(srcs):
+        raise InputFileError(f"{dst}: {len(weights)} weights for {len(srcs)} policies; give one weight per policy")
+    if not all(math.isfinite(w) and w > 0 for w in weights):
+        raise InputFileError(f"{dst}: weights must be finite and positive numbers, got {weights}")
+    return [float(w) for w in weights]
+
+
+def average_policies(srcs: list[str | Path], dst: str | Path, weights: list[float] | None = None) -> Config:
     """Write the element-wise mean of the weights of the policies ``srcs`` to the new file ``dst``
     (a "model soup", Wortsman et al. 2022: fine-tunes of one network from the same start average
-    into one network whose failures are not the union of theirs). Settings are the first's; the
-    copy records each source's path, step and digest (``extra["average_of"]``).
+    into one network whose failures are not the union of theirs). ``weights`` (positive, one per
+    source, normalised to sum to 1) weight the mean; equal shares by default. Settings are the
+    first's; the copy records each source's path, step, digest and share (``extra["average_of"]``).
 
     Returns:
         The average's config.
@@ -292,19 +306,22 @@ def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
     Raises:
         InputFileError: fewer than two sources, one given twice, one unreadable, one that differs
             from the first in a :data:`POLICY_FIELDS` setting, in its layers or in a non-float
-            tensor, or ``dst`` exists.
+            tensor, weights that are not one positive number per source, or ``dst`` exists.
         CheckpointWriteError: the write failed.
     """
     if len(srcs) < 2:
         raise InputFileError(f"{dst}: give at least two policies to average ({len(srcs)} given)")
     if Path(dst).exists():
         raise InputFileError(f"{dst}: exists; give a new file for the average")
+    raw = _soup_weights(srcs, weights, dst)
+    shares = [w / math.fsum(raw) for w in raw]
     first = read_checkpoint(srcs[0])
     cfg = checkpoint_config(first, srcs[0])
     floats = {k for k, v in first["model"].items() if v.is_floating_point()}
-    total = {k: v.detach().to(torch.float64).clone() for k, v in first["model"].items() if k in floats}
-    sources = [_source(srcs[0], first)]
-    for src in srcs[1:]:
+    # the weighted sum over the sum of the weights: equal weights give sum / n exactly
+    total = {k: raw[0] * v.detach().to(torch.float64) for k, v in first["model"].items() if k in floats}
+    sources = [_source(srcs[0], first, shares[0])]
+    for src, w, share in zip(srcs[1:], raw[1:], shares[1:], strict=True):
         ckpt = read_checkpoint(src)
         if ckpt.get("sha256") is not None and ckpt.get("sha256") in {x["sha256"] for x in sources}:
             raise InputFileError(f"{src}: the same policy is given twice; each source counts once")
@@ -317,11 +334,11 @@ def average_policies(srcs: list[str | Path], dst: str | Path) -> Config:
             raise InputFileError(f"{src}: its layers differ from {srcs[0]}'s; only one network's weights average")
         for k, v in model.items():
             if k in floats:
-                total[k] += v.to(torch.float64)
+                total[k] += w * v.to(torch.float64)
             elif not torch.equal(v, first["model"][k]):  # counters and the like have no mean
                 raise InputFileError(f"{src}: its {k} differs from {srcs[0]}'s and is not a float tensor to average")
-        sources.append(_source(src, ckpt))
-    state = {k: (total[k] / len(srcs)).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
+        sources.append(_source(src, ckpt, share))
+    state = {k: (total[k] / math.fsum(raw)).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
     q = QNetwork.of(cfg)
     load_weights(q, state, srcs[0])
     save_policy(q, cfg, dst, {"step": sources[0]["step"], "average_of": sources})
@@ -368,14 +385,16 @@ def _main(argv: list[str]) -> None:
     avg = sub.add_parser("average", help="Write the mean of the weights of policies fine-tuned from one start (a model soup).")
     avg.add_argument("srcs", nargs="+", metavar="SRC.pt", help="two or more policies that see and act alike")
     avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
+    avg.add_argument("--weights", type=float, nargs="+", default=None, metavar="W",
+                     help="one positive weight per policy, normalised to sum to 1 (default: equal)")
     a = ap.parse_args(argv)
     try:
         if a.command == "upgrade":
             for name in a.paths:
                 print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
         elif a.command == "average":
-            average_policies(a.srcs, a.out)
-            print(f"{a.out}: the mean of {len(a.srcs)} policies")
+            average_policies(a.srcs, a.out, a.weights)
+            print(f"{a.out}: the {'weighted ' if a.weights else ''}mean of {len(a.srcs)} policies")
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
