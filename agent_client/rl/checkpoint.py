@@ -314,7 +314,8 @@ def average_policies(srcs: list[str | Path], dst: str | Path, weights: list[floa
     if Path(dst).exists():
         raise InputFileError(f"{dst}: exists; give a new file for the average")
     raw = _soup_weights(srcs, weights, dst)
-    shares = [w / math.fsum(raw) for w in raw]
+    weight_sum = math.fsum(raw)
+    shares = [w / weight_sum for w in raw]
     first = read_checkpoint(srcs[0])
     cfg = checkpoint_config(first, srcs[0])
     floats = {k for k, v in first["model"].items() if v.is_floating_point()}
@@ -338,7 +339,7 @@ def average_policies(srcs: list[str | Path], dst: str | Path, weights: list[floa
             elif not torch.equal(v, first["model"][k]):  # counters and the like have no mean
                 raise InputFileError(f"{src}: its {k} differs from {srcs[0]}'s and is not a float tensor to average")
         sources.append(_source(src, ckpt, share))
-    state = {k: (total[k] / math.fsum(raw)).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
+    state = {k: (total[k] / weight_sum).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
     q = QNetwork.of(cfg)
     load_weights(q, state, srcs[0])
     save_policy(q, cfg, dst, {"step": sources[0]["step"], "average_of": sources})
