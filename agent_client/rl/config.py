@@ -228,6 +228,11 @@ class Config:
     decision_temperature: float = 2.0
     """(decision mean) the softmax's temperature over the outputs: higher averages over
     more levels."""
+    decision_brake_share: float = 1.0
+    """(decision mean) the full brake also acts at once where that softmax gives it at least
+    this share, though another level is the argmax: a student unsure whether a closing car
+    needs the full brake brakes fully, since a late full brake costs metres and an early
+    one a second of comfort. 1: only where it is the argmax."""
     torch_threads: int = 2
     """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
     machine the weights are bit-identical to one thread's)."""
@@ -278,6 +283,10 @@ class Config:
             raise bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
         if not self.decision_temperature > 0.0:
             raise bad("decision_temperature", "must be > 0")
+        if not 0.0 < self.decision_brake_share <= 1.0:
+            raise bad("decision_brake_share", f"must be in (0, 1], got {self.decision_brake_share}")
+        if self.decision_brake_share < 1.0 and self.decision != "mean":
+            raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:
             raise bad("train_trajectories", "must name at least one trajectory")
         for name in self.train_trajectories:

@@ -171,22 +171,25 @@ class Policy:
     ``temperature``, leaving the full brake out; a student torn between two levels then
     asks for the force between them instead of flipping from one to the other. Where the
     full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
-    :data:`FIRM_BRAKE`, the target brakes no softer than it.
+    :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
+    full brake at least ``brake_share``, it acts at once too.
 
     Args:
         q: the network.
         decision: one of :data:`DECISIONS`.
         levels: the action type's target levels (the mean decision).
         temperature: the softmax's temperature (the mean decision).
+        brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
     """
 
-    def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0):
+    def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
+                 brake_share: float = 1.0):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
         if decision == "mean" and len(levels) != n_out:
             raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
-        self.q, self.decision, self.temperature = q, decision, float(temperature)
+        self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
         keep = torch.ones(len(levels), dtype=torch.bool)
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
@@ -198,7 +201,7 @@ class Policy:
     def of(cls, q: QNetwork, cfg: Any) -> Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
-        return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature)
+        return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share)
 
     def __call__(self, obs: dict[str, np.ndarray]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
@@ -220,6 +223,8 @@ class Policy:
         action = int(out.argmax().item())
         if action == EMERGENCY_LEVEL:
             return Decision(action)
+        if self.brake_share < 1.0 and float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share:
+            return Decision(EMERGENCY_LEVEL)
         p = torch.softmax(out[self._keep] / self.temperature, dim=0)
         target = float(p @ self._levels)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder

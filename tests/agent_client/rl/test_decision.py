@@ -74,6 +74,24 @@ def test_the_full_brake_acts_at_once_where_it_is_the_argmax():
     assert Policy(_fixed_outputs(logits), "mean", FINE_LEVELS, 2.0)(_obs(np.random.default_rng(1))) == Decision(EMERGENCY_LEVEL)
 
 
+def test_the_full_brake_acts_at_once_where_its_softmax_share_reaches_the_brake_share():
+    rng = np.random.default_rng(4)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[4], logits[EMERGENCY_LEVEL] = 2.0, 1.0  # the argmax brakes at -0.3; the full brake is second
+    z = np.array(logits) / 2.0
+    share = float(np.exp(z[EMERGENCY_LEVEL]) / np.exp(z).sum())  # the full brake's share at temperature 2
+    q = _fixed_outputs(logits)
+    below = Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=share + 1e-3)(_obs(rng))
+    assert below.action == 4 and below.target is not None  # a ramp, as without the rule
+    assert below == Policy(q, "mean", FINE_LEVELS, 2.0)(_obs(rng))
+    assert Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=share - 1e-3)(_obs(rng)) == Decision(EMERGENCY_LEVEL)
+    with pytest.raises(ConfigError, match=r"\(0, 1\]") as e:
+        Config(**STUDENT, decision="mean", decision_brake_share=0.0)
+    assert e.value.field == "decision_brake_share"
+    with pytest.raises(ConfigError, match="mean"):
+        Config(**STUDENT, decision_brake_share=0.2)  # the argmax has no softmax to read
+
+
 def test_where_the_argmax_brakes_firmly_the_mean_brakes_no_softer():
     rng = np.random.default_rng(3)
     firm = next(a for a, u in enumerate(FINE_LEVELS) if a != EMERGENCY_LEVEL and u <= -FIRM_BRAKE)
@@ -116,10 +134,10 @@ def test_a_policy_copied_with_another_decision_keeps_its_weights_and_the_origina
     src, dst = tmp_path / "student.pt", tmp_path / "mean.pt"
     save_policy(q, cfg, src)
     before = src.read_bytes()
-    assert with_decision(src, dst, "mean", 3.0).decision_temperature == 3.0
+    assert with_decision(src, dst, "mean", 3.0, brake_share=0.2).decision_temperature == 3.0
     assert src.read_bytes() == before
     copy, copy_cfg = load_policy(dst)
-    assert (copy_cfg.decision, copy_cfg.decision_temperature) == ("mean", 3.0)
+    assert (copy_cfg.decision, copy_cfg.decision_temperature, copy_cfg.decision_brake_share) == ("mean", 3.0, 0.2)
     for key, value in q.state_dict().items():
         torch.testing.assert_close(copy.state_dict()[key], value, rtol=0, atol=0)
     with pytest.raises(InputFileError, match="exists"):
