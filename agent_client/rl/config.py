@@ -62,6 +62,7 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
         for wanted, field, option, reason in (
             (cfg.teacher != "none", "teacher", f"--teacher {cfg.teacher}", "labels no actions"),
             (cfg.aux_gap > 0.0, "aux_gap", f"--aux-gap {cfg.aux_gap:g}", "stores no gaps"),
+            (cfg.brake_margin > 0.0, "brake_margin", f"--brake-margin {cfg.brake_margin:g}", "stores no gaps"),
             (cfg.preroll, "preroll", "--preroll", "starts its episodes cold"),
             (cfg.action != "levels", "action", f"--action {cfg.action}", "stores no controls"),
             (tuple(cfg.train_trajectories) != (RANDOM,), "train_trajectories", f"--train-trajectories {','.join(cfg.train_trajectories)}", "drives random leads only"),
@@ -214,6 +215,15 @@ class Config:
     privileged: it is the head's training target, stored beside the replay, and never an
     input; the Q-values (or the student's outputs) do not read the head. 0: no head, as
     every run before it. vacc drive logs the estimate (gap_est) of a model that has one."""
+    brake_margin: float = 0.0
+    """(Double DQN) weight of a large-margin loss on the full brake (DQfD's, margin
+    :data:`~agent_client.rl.learner.BRAKE_MARGIN`) in the replayed states where only a hard
+    brake still stops :data:`~protocol.constants.MIN_GAP` short at the lead's speed: the
+    closing speed, from the stored gaps one step apart, needs
+    :data:`~agent_client.rl.learner.EMERGENCY_SHARE` of the full brake's deceleration or more.
+    Beside the TD loss, it ranks the full brake first in the rare states that decide a
+    collision, which the TD targets reach only through a few crashes. The gap is privileged:
+    a training signal, stored beside the replay as for aux_gap, never an input. 0: off."""
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
@@ -275,6 +285,10 @@ class Config:
             raise bad("teacher_steps", "must be >= 1")
         if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):
             raise bad("aux_gap", f"must be finite and >= 0, got {self.aux_gap}")
+        if not (math.isfinite(self.brake_margin) and self.brake_margin >= 0.0):
+            raise bad("brake_margin", f"must be finite and >= 0, got {self.brake_margin}")
+        if self.brake_margin > 0.0 and self.teacher != "none":
+            raise bad("brake_margin", "is a Double DQN loss; a teacher run learns the teacher's labels instead")
         if self.action not in ACTION_TYPES:
             raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
         if self.decision not in DECISIONS:

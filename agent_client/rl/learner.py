@@ -29,7 +29,7 @@ from torch.nn.utils import parameters_to_vector
 from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.controllers.acc import AccController
 from agent_client.errors import InputFileError
-from agent_client.rewards import ECO_TIME_GAP
+from agent_client.rewards import CONTROL_PERIOD, ECO_TIME_GAP
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_VERSION,
@@ -45,7 +45,7 @@ from agent_client.rl.evaluation import eval_episode, evaluate, score
 from agent_client.rl.network import Decision, Policy, QNetwork, gap_head_target, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
-from protocol.constants import DESIRED_GAP
+from protocol.constants import A_MIN, DESIRED_GAP, MIN_GAP
 
 __all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP"]
 
@@ -112,6 +112,36 @@ def double_dqn_target(
     done = terminated.float()  # [B]
     bootstrap = (1.0 - done) * next_values + done * terminal_values  # [B]
     return returns + discounts * bootstrap  # [B]
+
+
+# Config.brake_margin: DQfD's margin (Hester et al. 2018: 0.8) by which the full brake must
+# lead every other action in an emergency, and the share of the full brake's deceleration
+# that makes a state one (3.3 m/s^2: about ISO 15622's 3.5 m/s^2 ACC limit, past which the
+# ACC itself would need the driver).
+BRAKE_MARGIN = 0.8
+EMERGENCY_SHARE = 0.6
+
+
+def emergencies(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
+    """``[B]`` bool: the states whose closing speed, (gap - next gap) / ``dt``, needs at least
+    :data:`EMERGENCY_SHARE` of the full brake to stop :data:`MIN_GAP` short of the lead (at
+    the lead's speed; inside MIN_GAP and closing: always). NaN gaps (none stored): never."""
+    closing = (gaps - next_gaps) / dt  # [B] m/s, NaN where no gap is stored
+    room = gaps - MIN_GAP
+    need = closing.square() / (2.0 * room.clamp(min=1e-3))
+    hit = (closing > 0.0) & ((room <= 0.0) | (need >= EMERGENCY_SHARE * -A_MIN))
+    return hit & torch.isfinite(closing)
+
+
+def brake_margin_loss(q_all: torch.Tensor, emergency: torch.Tensor) -> torch.Tensor:
+    """DQfD's large-margin loss toward the full brake, max_a [Q(s, a) + l(a)] - Q(s, brake),
+    l = :data:`BRAKE_MARGIN` off the brake and 0 on it, averaged over the ``emergency``
+    states of the batch (0 where there is none): 0 once the brake leads by the margin."""
+    margins = torch.full_like(q_all[0], BRAKE_MARGIN)
+    margins[EMERGENCY_LEVEL] = 0.0
+    gaps = (q_all + margins).max(dim=1).values - q_all[:, EMERGENCY_LEVEL]  # [B] >= 0
+    w = emergency.to(q_all.dtype)
+    return (gaps * w).sum() / w.sum().clamp(min=1.0)
 
 
 TEACHER_55_GAINS = (0.3, 1.0)  # (beta [1/s^2], gamma [1/s]) of the "acc-55" teacher
@@ -324,7 +354,8 @@ class Learner:
         """One gradient step on a replay batch: Double DQN, or with a teacher the
         cross-entropy of the network's outputs (as logits) to the teacher's labels;
         logs losses at ``log_step``. With ``cfg.aux_gap``, the gap head's Huber loss on
-        the stored gaps is added, times that weight.
+        the stored gaps is added, times that weight; with ``cfg.brake_margin``, the
+        full brake's large-margin loss in the batch's emergencies (:func:`emergencies`).
 
         Returns:
             (the TD or teacher loss without the gap head's, mean output of the stored
@@ -343,6 +374,9 @@ class Learner:
         else:
             loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
         total = loss if gap_loss is None else loss + cfg.aux_gap * gap_loss
+        if cfg.brake_margin > 0.0:
+            emergency = emergencies(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)
+            total = total + cfg.brake_margin * brake_margin_loss(q_all, emergency)
         self.optimizer.zero_grad()
         total.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)

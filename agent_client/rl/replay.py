@@ -39,6 +39,7 @@ class ReplaySamples(NamedTuple):
     next_speeds: torch.Tensor  # [B, S] float32
     next_controls: torch.Tensor  # [B, S, C] float32
     gaps: torch.Tensor  # [B] float32 [m], the first observations' gaps (NaN: a memory without them)
+    next_gaps: torch.Tensor  # [B] float32 [m], the gaps one step on (the same episode's next observation)
 
 
 class _Plan(NamedTuple):
@@ -281,7 +282,7 @@ class ReplayMemory:
 
 def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> ReplaySamples:
     """One :class:`ReplaySamples` from the plans of one or more memories, gathered into ``buffer``."""
-    speeds, next_speeds, controls, next_controls, gaps, fields = [], [], [], [], [], []
+    speeds, next_speeds, controls, next_controls, gaps, next_gaps, fields = [], [], [], [], [], [], []
     start = 0
     for memory, plan in parts:
         end = start + len(plan.idx)
@@ -292,7 +293,9 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_speeds.append(v)
         next_controls.append(c)
         j = plan.idx % memory.capacity
-        gaps.append(memory.gaps[j] if len(memory.gaps) else np.full(len(j), np.nan, np.float32))
+        none = np.full(len(j), np.nan, np.float32)
+        gaps.append(memory.gaps[j] if len(memory.gaps) else none)
+        next_gaps.append(memory.gaps[(plan.idx + 1) % memory.capacity] if len(memory.gaps) else none)  # a valid start has a next slot
         fields.append((plan.idx, memory.actions[j].astype(np.int64), memory.rewards[j], plan.ns))
         start = end
 
@@ -316,6 +319,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_speeds=cat(next_speeds),
         next_controls=cat(next_controls),
         gaps=cat(gaps),
+        next_gaps=cat(next_gaps),
     )
 
 

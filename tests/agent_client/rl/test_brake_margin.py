@@ -1,0 +1,104 @@
+"""Config.brake_margin: DQfD's large-margin loss on the full brake in the replayed states
+whose privileged gaps say only a hard brake still stops short; the TD loss elsewhere."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from agent_client.actions import EMERGENCY_LEVEL
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.config import Config, ConfigError, single_stream_only
+from agent_client.rl.learner import (
+    BRAKE_MARGIN,
+    EMERGENCY_SHARE,
+    Learner,
+    brake_margin_loss,
+    emergencies,
+)
+from agent_client.rl.replay import ReplayMemory
+from agent_client.stacker import FrameStacker
+from protocol.constants import A_MIN, MIN_GAP
+
+
+def test_an_emergency_is_a_closing_speed_that_needs_a_hard_brake_to_stop_short():
+    dt = 0.1
+    need = EMERGENCY_SHARE * -A_MIN  # [m/s^2]
+    room = 30.0
+    c = float(np.sqrt(2.0 * need * room))  # the closing speed that needs exactly that
+    gaps = torch.tensor([MIN_GAP + room] * 3 + [50.0, 1.5, 1.5, 40.0])
+    closing = torch.tensor([c * 1.01, c * 0.99, -c, 0.0, 0.5, -0.5, float("nan")])
+    hit = emergencies(gaps, gaps - closing * dt, dt)
+    # just over the need; just under; opening; steady; inside MIN_GAP closing; opening; no gap stored
+    assert hit.tolist() == [True, False, False, False, True, False, False]
+
+
+def test_the_margin_loss_is_zero_once_the_brake_leads_by_the_margin_and_counts_only_emergencies():
+    q = torch.zeros(3, 21)
+    q[0, EMERGENCY_LEVEL] = BRAKE_MARGIN  # leads by the margin: no loss
+    q[1, 7] = 2.0  # another action leads: loss 2 + margin
+    q[2, 7] = 100.0  # not an emergency: not counted
+    loss = brake_margin_loss(q, torch.tensor([True, True, False]))
+    assert loss.item() == pytest.approx((0.0 + 2.0 + BRAKE_MARGIN) / 2)
+    assert brake_margin_loss(q, torch.zeros(3, dtype=torch.bool)).item() == 0.0
+
+
+def _trained_q(tmp_path, weight: float) -> torch.Tensor:
+    """Q-values, after 200 updates with ``brake_margin=weight``, of a fast approach's frame
+    (brightness 200) and a slow one's (40); reward 0 everywhere, so only the margin ranks."""
+    cfg = Config(reward="gap", brake_margin=weight, total_steps=10, batch_size=32, learning_rate=1e-3, torch_threads=1, gamma=0.0, n_step=1)
+    torch.manual_seed(0)
+    learner = Learner(cfg, tmp_path / str(weight), trainer="single")
+    memory, stacker = ReplayMemory(512, 8, 1, gaps=True), FrameStacker(8, 1)
+
+    def obs_at(level: int) -> dict[str, np.ndarray]:
+        return stacker.push(np.full((FRAME_H, FRAME_W), level, np.uint8), 20.0)
+
+    for closing, level in ((1.0, 40), (25.0, 200)):  # m/s
+        stacker.reset()
+        gap = 80.0
+        memory.start(obs_at(level), gap)
+        for _ in range(40):
+            gap -= closing * 0.1
+            memory.add(10, 0.0, False, True, obs_at(level), gap)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        learner.update(memory.sample(32, rng, 1, 0.0))
+    with torch.no_grad():
+        q = learner.q(torch.from_numpy(np.stack([obs_at(200)["frames"], obs_at(40)["frames"]])), torch.full((2, 8), 20.0))
+    learner.close()
+    return q
+
+
+def test_the_margin_loss_teaches_the_full_brake_where_the_gaps_close_fast(tmp_path):
+    q = _trained_q(tmp_path, 1.0)
+    lead = q[:, EMERGENCY_LEVEL] - torch.cat([q[:, :EMERGENCY_LEVEL], q[:, EMERGENCY_LEVEL + 1 :]], dim=1).max(dim=1).values
+    assert lead[0] > 0.5 * BRAKE_MARGIN  # the fast approach: the brake leads
+    control = _trained_q(tmp_path, 0.0)  # the same run without the loss
+    assert int(control[0].argmax()) != EMERGENCY_LEVEL
+
+
+def test_config_checks_the_weight_and_where_it_applies():
+    with pytest.raises(ConfigError) as e:
+        Config(reward="gap", brake_margin=-1.0)
+    assert e.value.field == "brake_margin"
+    with pytest.raises(ConfigError, match="teacher") as e:
+        Config(reward="eco", brake_margin=1.0, teacher="acc", action="ramp-fine")
+    assert e.value.field == "brake_margin"
+    found = single_stream_only(Config(reward="gap", brake_margin=1.0))
+    assert found is not None and found[0] == "brake_margin"
+
+
+def test_a_sample_carries_the_gap_one_step_on_within_the_episode():
+    memory, stacker = ReplayMemory(64, 8, 1, gaps=True), FrameStacker(8, 1)
+    rng = np.random.default_rng(0)
+    obs = stacker.push(rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8), 20.0)
+    memory.start(obs, 50.0)
+    for i in range(30):
+        memory.add(3, 0.0, False, i == 14, obs, 49.0 - i)  # truncated at slot 14: slot 15 is its last observation
+        if i == 14:
+            memory.start(obs, 200.0)
+    b = memory.sample(32, np.random.default_rng(1), 1, 0.99)
+    np.testing.assert_array_equal(b.next_gaps.numpy(), memory.gaps[b.indices + 1])
+    assert 15 not in b.indices.tolist() and memory.gaps[16] == 200.0  # slot 15 ends the first episode; 16 starts the next
