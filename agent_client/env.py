@@ -21,20 +21,18 @@ from agent_client import preprocess as pre
 from agent_client.actions import ACTION_TYPES, make_action_type
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
-from agent_client.rewards import ECO_WEIGHTS, REWARDS, make_reward
+from agent_client.rewards import CONTROL_PERIOD, ECO_WEIGHTS, REWARDS, make_reward
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
 from protocol.constants import CAMERA_SIZE, FORCES, N_ACTIONS
 from protocol.scenarios import LEAD_SCENARIOS, check_initial, check_trajectory
 from sim_server.trajectory import RANDOM_DURATION, TEST_DURATION
-from sim_server.world import WorldConfig
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED", "ENV_ID", "MAX_EPISODE_STEPS"]
 
 ENV_ID = "vacc/VisionACC-v0"
 RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed"})
-CONTROL_PERIOD = WorldConfig().control_period  # [s] a spawned server's default (0.1 s)
 # The longest named trajectory (the 240 s tests and random episodes) in control steps:
 # gym.make's TimeLimit, a backstop the server's own truncation reaches at the same step.
 MAX_EPISODE_STEPS = round(max(TEST_DURATION, RANDOM_DURATION, *(s.duration for s in LEAD_SCENARIOS.values())) / CONTROL_PERIOD)
