@@ -85,7 +85,7 @@ class DDQNController:
 
     def _q_and_gap(self, stacked: dict[str, np.ndarray]) -> tuple[torch.Tensor, float]:
         """The outputs ``[A]`` and the gap head's estimate [m] for a stacked observation."""
-        dev = next(self.q.parameters()).device
+        dev = self.q.device
         controls = stacked.get("controls")
         with torch.inference_mode():
             c = torch.from_numpy(controls).to(dev)[None] if controls is not None else None

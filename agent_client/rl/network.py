@@ -109,6 +109,11 @@ class QNetwork(nn.Module):
         out = self._linears[1]
         return F.linear(hidden, out.weight, out.bias), F.linear(hidden, self.gap_head.weight, self.gap_head.bias)[:, 0]
 
+    @property
+    def device(self) -> torch.device:
+        """Where the weights are; cheaper per decision than ``next(self.parameters())``, which walks the modules."""
+        return self._linears[0].weight.device
+
     @staticmethod
     def gap_estimate(raw: torch.Tensor) -> torch.Tensor:
         """The gap head's raw output in metres."""
@@ -119,7 +124,7 @@ class QNetwork(nn.Module):
         # The layers are called functionally, with in-place ReLUs: the same kernels and so the
         # same numbers as calling the modules, without their per-call overhead (a third of
         # a batch-1 decision).
-        x = frames.float() / 255.0
+        x = torch.div(frames, 255.0)  # uint8 -> float and /255 in one pass: frames.float() / 255.0 to the bit
         for conv in self._convs:
             x = torch.relu_(F.conv2d(x, conv.weight, conv.bias, conv.stride))
         x = x.flatten(1)  # [B, 2560]
@@ -138,7 +143,7 @@ class QNetwork(nn.Module):
 def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
     """argmax_a Q(s, a) for one stacked observation (frames ``[S, H, W]``, speeds ``[S]``,
     controls ``[S, C]`` for a network that observes them)."""
-    device = next(q.parameters()).device
+    device = q.device
     with torch.inference_mode():
         c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
         qv = q(torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c)  # [1, A]
@@ -207,7 +212,7 @@ class Policy:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
         if self.decision == "argmax":
             return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
-        device = next(self.q.parameters()).device
+        device = self.q.device
         controls = obs.get("controls")
         with torch.inference_mode():
             c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
