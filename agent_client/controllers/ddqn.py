@@ -12,7 +12,7 @@ from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import Decision, Policy, QNetwork
+from agent_client.rl.network import Decision, Policy, QNetwork, batch_of_one
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
@@ -85,11 +85,8 @@ class DDQNController:
 
     def _q_and_gap(self, stacked: dict[str, np.ndarray]) -> tuple[torch.Tensor, float]:
         """The outputs ``[A]`` and the gap head's estimate [m] for a stacked observation."""
-        dev = self.q.device
-        controls = stacked.get("controls")
         with torch.inference_mode():
-            c = torch.from_numpy(controls).to(dev)[None] if controls is not None else None
-            q, raw = self.q.q_and_gap(torch.from_numpy(stacked["frames"]).to(dev)[None], torch.from_numpy(stacked["speeds"]).to(dev)[None], c)
+            q, raw = self.q.q_and_gap(*batch_of_one(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls")))
         return q[0], float(QNetwork.gap_estimate(raw)[0])
 
     def __call__(self, obs: dict[str, Any]) -> float:

@@ -22,7 +22,7 @@ from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
     "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
-    "GAP_HEAD_RANGE", "gap_head_target",
+    "GAP_HEAD_RANGE", "gap_head_target", "batch_of_one",
 ]  # fmt: skip
 
 GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
@@ -140,13 +140,18 @@ class QNetwork(nn.Module):
         return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
 
 
+def batch_of_one(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """One stacked observation as the network's inputs: a batch of one on its device."""
+    device = q.device
+    c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
+    return torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c
+
+
 def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
     """argmax_a Q(s, a) for one stacked observation (frames ``[S, H, W]``, speeds ``[S]``,
     controls ``[S, C]`` for a network that observes them)."""
-    device = q.device
     with torch.inference_mode():
-        c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
-        qv = q(torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c)  # [1, A]
+        qv = q(*batch_of_one(q, frames, speeds, controls))  # [1, A]
     return int(qv.argmax(dim=1).item())
 
 
@@ -212,11 +217,8 @@ class Policy:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
         if self.decision == "argmax":
             return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
-        device = self.q.device
-        controls = obs.get("controls")
         with torch.inference_mode():
-            c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
-            out = self.q(torch.from_numpy(obs["frames"]).to(device)[None], torch.from_numpy(obs["speeds"]).to(device)[None], c)[0]
+            out = self.q(*batch_of_one(self.q, obs["frames"], obs["speeds"], obs.get("controls")))[0]
         return self.decide(out)
 
     def decide(self, out: torch.Tensor) -> Decision:
