@@ -10,9 +10,17 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["FrameStacker", "MAX_SPEED"]
+__all__ = ["FrameStacker", "MAX_SPEED", "stack_picks"]
 
 MAX_SPEED = 60.0  # [m/s] upper bound of the speed observation
+
+
+def stack_picks(n_history: int, frame_stack: int, stack_stride: int) -> list[int]:
+    """Which of the last ``n_history`` frames (0: the oldest kept) a stack holds, oldest first:
+    every ``stack_stride``-th back from the newest, the oldest pick repeated in front while
+    fewer exist (an episode's start)."""
+    picks = list(range(n_history - 1, -1, -stack_stride))[:frame_stack][::-1]
+    return [picks[0]] * (frame_stack - len(picks)) + picks
 
 
 class FrameStacker:
@@ -37,23 +45,23 @@ class FrameStacker:
         """Forget the previous episode."""
         self._history.clear()
 
-    def push(self, frame: np.ndarray, v_host: float, controls: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def push(self, frame: np.ndarray, v_host: float, controls: np.ndarray | None = None, frames: bool = True) -> dict[str, np.ndarray]:
         """Add one preprocessed frame, its host speed [m/s] and, for action types that
         observe them, its controls (:data:`agent_client.actions.CONTROLS`); return the observation.
 
         Returns:
             ``{"frames": uint8 (frame_stack, H, W), "speeds": float32 (frame_stack,)}``,
             oldest first; speeds clipped to :data:`MAX_SPEED`; and, if controls were
-            given, ``"controls": float32 (frame_stack, C)``.
+            given, ``"controls": float32 (frame_stack, C)``. With ``frames=False``, no
+            ``"frames"`` (for a caller that keeps them as the network's input itself:
+            :class:`~agent_client.rl.network.ScaledFrames`).
         """
         self._history.append((frame, v_host, controls))
-        picks = list(self._history)[::-1][:: self.stack_stride][::-1]
-        while len(picks) < self.frame_stack:  # episode start: repeat the oldest pick
-            picks.insert(0, picks[0])
-        obs = {
-            "frames": np.stack([f for f, _, _ in picks]),
-            "speeds": np.array([min(v, MAX_SPEED) for _, v, _ in picks], dtype=np.float32),
-        }
+        history = list(self._history)
+        picks = [history[i] for i in stack_picks(len(history), self.frame_stack, self.stack_stride)]
+        obs = {"speeds": np.array([min(v, MAX_SPEED) for _, v, _ in picks], dtype=np.float32)}
+        if frames:
+            obs["frames"] = np.stack([f for f, _, _ in picks])
         if controls is not None:
             obs["controls"] = np.stack([c for _, _, c in picks if c is not None]).astype(np.float32, copy=False)
         return obs

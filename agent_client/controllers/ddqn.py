@@ -5,14 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import Decision, Policy, QNetwork, batch_of_one
+from agent_client.rl.network import Decision, Policy, QNetwork, ScaledFrames, batch_of_one
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
@@ -21,7 +20,8 @@ __all__ = ["DDQNController"]
 class DDQNController:
     """Greedy DDQN driver (for ``vacc drive`` and ``vacc evaluate``).
 
-    Keeps its own frame/speed stack with the env's :class:`FrameStacker`, so it sees
+    Keeps its own frame/speed stack with the env's :class:`FrameStacker` (its frames as the
+    network's input, :class:`~agent_client.rl.network.ScaledFrames`), so it sees
     exactly what the network saw in training, and decides through
     :class:`~agent_client.rl.network.Policy` with the checkpoint's decision rule, the
     trainer's own inference path.
@@ -45,6 +45,7 @@ class DDQNController:
         self.log_columns: tuple[str, ...] = ("gap_est",) if q.gap_head is not None else ()
         self.log_values: tuple[float, ...] = ()  # of the last decision, one per log column
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
+        self.frames = ScaledFrames(cfg.frame_stack, cfg.stack_stride)
         self.actions = make_action_type(cfg.action)
 
     @classmethod
@@ -59,6 +60,7 @@ class DDQNController:
     def reset(self) -> None:
         """Forget the previous episode's frames (and release the held force)."""
         self.stacker.reset()
+        self.frames.reset()
         self.actions.reset()
 
     @property
@@ -66,8 +68,9 @@ class DDQNController:
         """Control steps of camera history its stack spans: the pre-roll ``vacc drive`` gives it."""
         return (self.cfg.frame_stack - 1) * self.cfg.stack_stride
 
-    def warm(self, obs: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Stack a frame from before it engages (the pre-roll), deciding nothing; returns the stack."""
+    def warm(self, obs: dict[str, Any]) -> dict[str, Any]:
+        """Stack a frame from before it engages (the pre-roll), deciding nothing; returns the
+        stack (its frames scaled, valid until the next frame)."""
         from agent_client.session import Session
 
         image = Session.image(obs)
@@ -77,13 +80,16 @@ class DDQNController:
         if self.actions.n_controls:
             self.actions.observe(float(obs["accel"]))  # anti-windup, as in the env
             controls = self.actions.controls(float(obs["set_speed"]))
-        return self.stacker.push(preprocess(image, self.cfg.zoom), float(obs["v_host"]), controls)
+        frame = preprocess(image, self.cfg.zoom)
+        stacked: dict[str, Any] = self.stacker.push(frame, float(obs["v_host"]), controls, frames=False)
+        stacked["frames"] = self.frames.push(frame)
+        return stacked
 
-    def act(self, stacked: dict[str, np.ndarray]) -> Decision:
+    def act(self, stacked: dict[str, Any]) -> Decision:
         """The decision for a stacked observation (frames, speeds and, if observed, controls)."""
         return self.policy(stacked)
 
-    def _q_and_gap(self, stacked: dict[str, np.ndarray]) -> tuple[torch.Tensor, float]:
+    def _q_and_gap(self, stacked: dict[str, Any]) -> tuple[torch.Tensor, float]:
         """The outputs ``[A]`` and the gap head's estimate [m] for a stacked observation."""
         with torch.inference_mode():
             q, raw = self.q.q_and_gap(*batch_of_one(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls")))
@@ -94,7 +100,7 @@ class DDQNController:
         stacked = self.warm(obs)
         if self.log_columns:  # one pass for the decision and the estimate
             q, gap = self._q_and_gap(stacked)
-            d = self.policy.decide(q)
+            d = self.policy.decide(q, stacked.get("controls"))
             self.log_values = (gap,)
         else:
             d = self.act(stacked)

@@ -245,10 +245,10 @@ def upgrade(path: str | Path) -> bool:
 
 
 def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: float | None = None,
-                  brake_share: float | None = None) -> Config:
+                  brake_share: float | None = None, deadband: float | None = None) -> Config:
     """Write a copy of the policy ``src`` to the new file ``dst`` with another decision rule
-    (``Config.decision``, and ``decision_temperature`` and ``decision_brake_share`` if given);
-    weights unchanged.
+    (``Config.decision``, and ``decision_temperature``, ``decision_brake_share`` and
+    ``decision_deadband`` if given); weights unchanged.
 
     Returns:
         The copy's config.
@@ -264,8 +264,10 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
         raise InputFileError(f"{dst}: exists; give a new file for the copy")
     temperature = cfg.decision_temperature if temperature is None else temperature
     brake_share = cfg.decision_brake_share if brake_share is None else brake_share
+    deadband = cfg.decision_deadband if deadband is None else deadband
     try:
-        cfg = dataclasses.replace(cfg, decision=decision, decision_temperature=temperature, decision_brake_share=brake_share)
+        cfg = dataclasses.replace(cfg, decision=decision, decision_temperature=temperature, decision_brake_share=brake_share,
+                                  decision_deadband=deadband)
     except ValueError as exc:
         raise InputFileError(f"{src}: {exc}") from None
     ckpt["config"] = config_dict(cfg)
@@ -274,7 +276,7 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
 
 
 POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "speed_scale", "decision",
-                 "decision_temperature", "decision_brake_share")
+                 "decision_temperature", "decision_brake_share", "decision_deadband")
 """The settings that decide what a policy sees and how it acts: averaged policies must agree on them.
 (The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
@@ -385,6 +387,8 @@ def _main(argv: list[str]) -> None:
     dec.add_argument("--temperature", type=float, default=None, help="the mean decision's softmax temperature (default: the checkpoint's)")
     dec.add_argument("--brake-share", type=float, default=None,
                      help="the mean decision's full-brake share that brakes at once (Config.decision_brake_share; default: the checkpoint's)")
+    dec.add_argument("--deadband", type=float, default=None,
+                     help="force within which the mean decision keeps the held force (Config.decision_deadband; default: the checkpoint's)")
     pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
     pol.add_argument("src", metavar="SRC.pt")
     pol.add_argument("dst", metavar="DST.pt", help="a new file")
@@ -404,8 +408,9 @@ def _main(argv: list[str]) -> None:
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
-            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share)
-            print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}, brake share {cfg.decision_brake_share:g}")
+            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband)
+            print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}, brake share {cfg.decision_brake_share:g}, "
+                  f"deadband {cfg.decision_deadband:g}")
     except ClientError as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
 

@@ -243,6 +243,12 @@ class Config:
     this share, though another level is the argmax: a student unsure whether a closing car
     needs the full brake brakes fully, since a late full brake costs metres and an early
     one a second of comfort. 1: only where it is the argmax."""
+    decision_deadband: float = 0.0
+    """(decision mean) where the mean's target lies within this much force of the held one,
+    the held force stays: a student whose target wanders by a hundredth or two from step to
+    step then cruises at a constant force instead of see-sawing, each wobble of which an
+    electric drive pays for twice (traction at its efficiency, regeneration at less). A
+    brake of :data:`~agent_client.rl.network.FIRM_BRAKE` or more is never held back. 0: off."""
     torch_threads: int = 2
     """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
     machine the weights are bit-identical to one thread's)."""
@@ -299,6 +305,10 @@ class Config:
             raise bad("decision_temperature", "must be > 0")
         if not 0.0 < self.decision_brake_share <= 1.0:
             raise bad("decision_brake_share", f"must be in (0, 1], got {self.decision_brake_share}")
+        if not 0.0 <= self.decision_deadband < 0.5:
+            raise bad("decision_deadband", f"must be in [0, 0.5), got {self.decision_deadband}")
+        if self.decision_deadband > 0.0 and self.decision != "mean":
+            raise bad("decision_deadband", "it holds the ramp's force near the mean's target: it needs decision 'mean'")
         if self.decision_brake_share < 1.0 and self.decision != "mean":
             raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:

@@ -18,15 +18,21 @@ import torch.nn.functional as F
 from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import DECISIONS
+from agent_client.stacker import stack_picks
 from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
     "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
-    "GAP_HEAD_RANGE", "gap_head_target", "batch_of_one",
+    "GAP_HEAD_RANGE", "gap_head_target", "batch_of_one", "scale_frames", "ScaledFrames",
 ]  # fmt: skip
 
 GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
 GAP_HEAD_RANGE = (1.0, 150.0)  # [m] the gap head's target is clipped to this: beyond 150 m only "far" matters
+
+
+def scale_frames(frames: torch.Tensor) -> torch.Tensor:
+    """uint8 frames as the network's input: float, /255 (in one pass: ``frames.float() / 255.0`` to the bit)."""
+    return torch.div(frames, 255.0)
 
 
 def gap_head_target(gap: torch.Tensor) -> torch.Tensor:
@@ -88,7 +94,8 @@ class QNetwork(nn.Module):
         """Q-values.
 
         Args:
-            frames: uint8 ``[B, frame_stack, 105, 150]``.
+            frames: uint8 ``[B, frame_stack, 105, 150]``, or those frames already as
+                :func:`scale_frames` gives them (any floating dtype is taken as scaled).
             speeds: host speeds [m/s], ``[B, frame_stack]``.
             controls: ``[B, frame_stack, n_controls]`` (force, set speed [m/s]); only
                 for a network built with ``n_controls > 0``, which needs them.
@@ -124,7 +131,7 @@ class QNetwork(nn.Module):
         # The layers are called functionally, with in-place ReLUs: the same kernels and so the
         # same numbers as calling the modules, without their per-call overhead (a third of
         # a batch-1 decision).
-        x = torch.div(frames, 255.0)  # uint8 -> float and /255 in one pass: frames.float() / 255.0 to the bit
+        x = frames if frames.is_floating_point() else scale_frames(frames)
         for conv in self._convs:
             x = torch.relu_(F.conv2d(x, conv.weight, conv.bias, conv.stride))
         x = x.flatten(1)  # [B, 2560]
@@ -140,11 +147,53 @@ class QNetwork(nn.Module):
         return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
 
 
-def batch_of_one(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-    """One stacked observation as the network's inputs: a batch of one on its device."""
+def batch_of_one(q: QNetwork, frames: np.ndarray | torch.Tensor, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """One stacked observation as the network's inputs: a batch of one on its device
+    (frames uint8, or scaled as :class:`ScaledFrames` keeps them)."""
     device = q.device
     c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
-    return torch.from_numpy(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c
+    return torch.as_tensor(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c
+
+
+class ScaledFrames:
+    """The frames of the stacks a :class:`~agent_client.stacker.FrameStacker` builds, kept
+    as the network's input: :func:`scale_frames` of its uint8 stack, to the bit.
+
+    A decision at batch 1 spent a tenth of its time stacking eight frames and scaling
+    them, though seven of the eight were scaled before. Here each frame is scaled once, as
+    it arrives, into one ring per phase of the stride (each slot written twice, ``n``
+    apart), so that a full stack is a view of ``frame_stack`` consecutive slots, not a copy.
+
+    Args:
+        frame_stack: frames per stack.
+        stack_stride: control steps between stacked frames.
+    """
+
+    def __init__(self, frame_stack: int = 8, stack_stride: int = 1):
+        self.frame_stack, self.stack_stride = frame_stack, stack_stride
+        self._span = (frame_stack - 1) * stack_stride + 1  # frames a full stack spans
+        self._rings: torch.Tensor | None = None  # [stride, 2 * frame_stack, H, W]
+        self._pushed = 0
+
+    def reset(self) -> None:
+        """Forget the previous episode."""
+        self._pushed = 0
+
+    def push(self, frame: np.ndarray) -> torch.Tensor:
+        """Add one preprocessed uint8 frame ``[H, W]``; the stack ``[frame_stack, H, W]``,
+        oldest first, valid until the next push (a view into the rings)."""
+        n, stride = self.frame_stack, self.stack_stride
+        if self._rings is None or self._rings.shape[2:] != frame.shape:
+            self._rings = torch.empty((stride, 2 * n, *frame.shape))
+        i = self._pushed
+        ring, slot = self._rings[i % stride], (i // stride) % n
+        torch.div(torch.from_numpy(frame), 255.0, out=ring[slot])  # scale_frames, into place
+        ring[slot + n] = ring[slot]
+        self._pushed += 1
+        if self._pushed >= self._span:  # the stack is this ring's last n frames
+            return ring[slot + 1 : slot + n + 1]
+        # episode start: nothing overwritten yet, so history index = push count
+        return torch.stack([self._rings[k % stride, (k // stride) % n] for k in stack_picks(self._pushed, n, stride)])
 
 
 def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
@@ -182,7 +231,9 @@ class Policy:
     asks for the force between them instead of flipping from one to the other. Where the
     full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
     :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
-    full brake at least ``brake_share``, it acts at once too.
+    full brake at least ``brake_share``, it acts at once too. With a ``deadband``, a target
+    within that much force of the held one (the last force, the first of the observed
+    controls) keeps the held force, unless it brakes at least :data:`FIRM_BRAKE`.
 
     Args:
         q: the network.
@@ -190,16 +241,18 @@ class Policy:
         levels: the action type's target levels (the mean decision).
         temperature: the softmax's temperature (the mean decision).
         brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
+        deadband: force within which the held force stays (the mean decision; 0: off).
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
-                 brake_share: float = 1.0):
+                 brake_share: float = 1.0, deadband: float = 0.0):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
         if decision == "mean" and len(levels) != n_out:
             raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
+        self.deadband = float(deadband)
         keep = torch.ones(len(levels), dtype=torch.bool)
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
@@ -211,7 +264,8 @@ class Policy:
     def of(cls, q: QNetwork, cfg: Any) -> Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
-        return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share)
+        return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
+                   cfg.decision_deadband)
 
     def __call__(self, obs: dict[str, np.ndarray]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
@@ -219,11 +273,12 @@ class Policy:
             return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
         with torch.inference_mode():
             out = self.q(*batch_of_one(self.q, obs["frames"], obs["speeds"], obs.get("controls")))[0]
-        return self.decide(out)
+        return self.decide(out, obs.get("controls"))
 
-    def decide(self, out: torch.Tensor) -> Decision:
+    def decide(self, out: torch.Tensor, controls: np.ndarray | None = None) -> Decision:
         """The decision from the network's outputs ``[A]`` for one observation, computed
-        elsewhere (e.g. by :meth:`QNetwork.q_and_gap`); the same as :meth:`__call__`'s."""
+        elsewhere (e.g. by :meth:`QNetwork.q_and_gap`), and its controls ``[S, C]`` (the
+        deadband reads the held force there); the same as :meth:`__call__`'s."""
         if self.decision == "argmax":
             return Decision(int(out.argmax().item()))
         out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
@@ -236,6 +291,12 @@ class Policy:
         target = float(p @ self._levels)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder
             target = min(target, self._all_levels[action])
+        if self.deadband > 0.0:
+            if controls is None:
+                raise ValueError("the deadband reads the held force from the controls; none were given")
+            held = float(controls[-1][0])
+            if target > -FIRM_BRAKE and abs(target - held) <= self.deadband:
+                target = held
         return Decision(action, target)
 
 

@@ -27,7 +27,14 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import Config
 from agent_client.rl.learner import double_dqn_target
-from agent_client.rl.network import FORCES, QNetwork, linear_schedule
+from agent_client.rl.network import (
+    FORCES,
+    QNetwork,
+    ScaledFrames,
+    batch_of_one,
+    linear_schedule,
+    scale_frames,
+)
 from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 
@@ -213,6 +220,38 @@ def test_the_fast_forward_computes_what_the_layer_modules_compute(model):
             forward(frames, speeds, controls).square().sum().backward()
             grads.append([p.grad.clone() for p in q.parameters()])
         assert all(torch.equal(a, b) for a, b in zip(*grads, strict=True))
+
+@pytest.mark.parametrize(("frame_stack", "stride"), [(8, 2), (8, 1), (4, 3), (1, 1)])
+def test_the_scaled_frames_are_the_stackers_stack_scaled_to_the_bit(frame_stack, stride):
+    # The ddqn controller keeps its frames scaled in rings; the env's stacker stacks them
+    # as uint8. Episode starts (the oldest pick repeated), full stacks and resets.
+    rng = np.random.default_rng(11)
+    stacker, scaled = FrameStacker(frame_stack, stride), ScaledFrames(frame_stack, stride)
+    for steps in (3, 40, 17):
+        stacker.reset()
+        scaled.reset()
+        for _ in range(steps):
+            frame = rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
+            expected = scale_frames(torch.from_numpy(stacker.push(frame, 20.0)["frames"]))
+            assert torch.equal(scaled.push(frame), expected)
+
+
+@pytest.mark.parametrize("model", sorted(p.name for p in MODELS_DIR.glob("*.pt")))
+def test_the_controller_and_the_trainer_compute_the_same_outputs(model):
+    # The controller feeds the network scaled frames from its rings (views at any offset);
+    # the trainer's path feeds uint8 stacks. The same numbers, to the last bit.
+    controller = DDQNController.from_checkpoint(MODELS_DIR / model)
+    q, cfg = controller.q, controller.cfg
+    stacker, rng = FrameStacker(cfg.frame_stack, cfg.stack_stride), np.random.default_rng(12)
+    for _ in range(2 * cfg.frame_stack * cfg.stack_stride):
+        frame = rng.integers(0, 256, (FRAME_H, FRAME_W), dtype=np.uint8)
+        controls = np.array([0.1, 30.0], np.float32) if q.n_controls else None
+        uint8 = stacker.push(frame, 25.0, controls)
+        with torch.inference_mode():
+            trainer = q(*batch_of_one(q, uint8["frames"], uint8["speeds"], uint8.get("controls")))
+            driver = q(*batch_of_one(q, controller.frames.push(frame), uint8["speeds"], uint8.get("controls")))
+        assert torch.equal(trainer, driver)
+
 
 # -- the network never sees privileged state ----------------------------------------
 

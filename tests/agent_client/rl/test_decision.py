@@ -107,6 +107,33 @@ def test_where_the_argmax_brakes_firmly_the_mean_brakes_no_softer():
         assert d == Decision(argmax, pytest.approx(expected, abs=1e-12))
 
 
+def test_the_deadband_keeps_the_held_force_near_the_target_but_never_holds_back_a_firm_brake():
+    rng = np.random.default_rng(5)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[FINE_LEVELS.index(0.09)] = 6.0  # the mean sits a little below 0.09
+    q = _fixed_outputs(logits)
+    free = Policy(q, "mean", FINE_LEVELS, 1.0)(_obs(rng)).target
+    assert free is not None
+    for held, deadband, kept in ((free + 0.015, 0.02, True), (free - 0.025, 0.02, False), (free + 0.015, 0.01, False)):
+        obs = _obs(rng)
+        obs["controls"][-1, 0] = held  # the force held now: the last of the observed controls
+        d = Policy(q, "mean", FINE_LEVELS, 1.0, deadband=deadband)(obs)
+        assert d.target == pytest.approx(float(np.float32(held)) if kept else free, abs=1e-12)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[FINE_LEVELS.index(-0.3)] = 6.0  # a firm brake
+    q = _fixed_outputs(logits)
+    obs = _obs(rng)
+    obs["controls"][-1, 0] = -0.29
+    assert Policy(q, "mean", FINE_LEVELS, 1.0, deadband=0.05)(obs).target == pytest.approx(-0.3)  # not held at -0.29
+    with pytest.raises(ValueError, match="controls"):
+        Policy(q, "mean", FINE_LEVELS, 1.0, deadband=0.05).decide(torch.tensor(logits))
+    with pytest.raises(ConfigError, match="mean") as e:
+        Config(**STUDENT, decision_deadband=0.02)  # the argmax has no target to hold near
+    assert e.value.field == "decision_deadband"
+    with pytest.raises(ConfigError, match=r"\[0, 0.5\)"):
+        Config(**STUDENT, decision="mean", decision_deadband=-0.01)
+
+
 def test_the_argmax_decision_is_the_greedy_action():
     torch.manual_seed(0)
     q, rng = QNetwork(n_actions=len(FINE_LEVELS), n_controls=2).eval(), np.random.default_rng(2)
