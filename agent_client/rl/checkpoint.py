@@ -245,10 +245,10 @@ def upgrade(path: str | Path) -> bool:
 
 
 def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: float | None = None,
-                  brake_share: float | None = None, deadband: float | None = None) -> Config:
+                  brake_share: float | None = None, deadband: float | None = None, smoothing: float | None = None) -> Config:
     """Write a copy of the policy ``src`` to the new file ``dst`` with another decision rule
     (``Config.decision``, and ``decision_temperature``, ``decision_brake_share`` and
-    ``decision_deadband`` if given); weights unchanged.
+    ``decision_deadband`` and ``decision_smoothing`` if given); weights unchanged.
 
     Returns:
         The copy's config.
@@ -265,9 +265,10 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     temperature = cfg.decision_temperature if temperature is None else temperature
     brake_share = cfg.decision_brake_share if brake_share is None else brake_share
     deadband = cfg.decision_deadband if deadband is None else deadband
+    smoothing = cfg.decision_smoothing if smoothing is None else smoothing
     try:
         cfg = dataclasses.replace(cfg, decision=decision, decision_temperature=temperature, decision_brake_share=brake_share,
-                                  decision_deadband=deadband)
+                                  decision_deadband=deadband, decision_smoothing=smoothing)
     except ValueError as exc:
         raise InputFileError(f"{src}: {exc}") from None
     ckpt["config"] = config_dict(cfg)
@@ -276,7 +277,8 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
 
 
 POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "speed_scale", "decision",
-                 "decision_temperature", "decision_brake_share", "decision_deadband")
+                 "decision_temperature", "decision_brake_share", "decision_deadband",
+                 "decision_smoothing")
 """The settings that decide what a policy sees and how it acts: averaged policies must agree on them.
 (The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
@@ -397,6 +399,8 @@ def _main(argv: list[str]) -> None:
     avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
     avg.add_argument("--weights", type=float, nargs="+", default=None, metavar="W",
                      help="one positive weight per policy, normalised to sum to 1 (default: equal)")
+    dec.add_argument("--smoothing", type=float, default=None,
+                     help="the share of the way to the mean's target asked each step (Config.decision_smoothing; default: the checkpoint's)")
     a = ap.parse_args(argv)
     try:
         if a.command == "upgrade":
@@ -408,9 +412,9 @@ def _main(argv: list[str]) -> None:
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
-            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband)
+            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband, a.smoothing)
             print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}, brake share {cfg.decision_brake_share:g}, "
-                  f"deadband {cfg.decision_deadband:g}")
+                  f"deadband {cfg.decision_deadband:g}, smoothing {cfg.decision_smoothing:g}")
     except ClientError as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
 

@@ -248,6 +248,11 @@ class Config:
     the held force stays (a brake of FIRM_BRAKE or more is never held back). An ablation:
     on random EV seeds 200-207 ev-eco saved no energy with 0.01-0.04 (docs/training.md).
     0: off."""
+    decision_smoothing: float = 1.0
+    """(decision mean) the share of the way from the held force to the mean's target that
+    each step asks of the ramp: a first-order lag of time constant about one step over this
+    share, against a student's target wandering over a second or two (a brake of FIRM_BRAKE
+    or more is never lagged). 1: off."""
     torch_threads: int = 2
     """CPU threads of torch's operations: 2, the update's convolutions on both cores (on this
     machine the weights are bit-identical to one thread's)."""
@@ -308,6 +313,10 @@ class Config:
             raise bad("decision_deadband", f"must be in [0, 0.5), got {self.decision_deadband}")
         if self.decision_deadband > 0.0 and self.decision != "mean":
             raise bad("decision_deadband", "it holds the ramp's force near the mean's target: it needs decision 'mean'")
+        if not 0.0 < self.decision_smoothing <= 1.0:
+            raise bad("decision_smoothing", f"must be in (0, 1], got {self.decision_smoothing}")
+        if self.decision_smoothing < 1.0 and self.decision != "mean":
+            raise bad("decision_smoothing", "it lags the mean's target: it needs decision 'mean'")
         if self.decision_brake_share < 1.0 and self.decision != "mean":
             raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:

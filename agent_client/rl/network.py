@@ -245,14 +245,14 @@ class Policy:
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
-                 brake_share: float = 1.0, deadband: float = 0.0):
+                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
         if decision == "mean" and len(levels) != n_out:
             raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
-        self.deadband = float(deadband)
+        self.deadband, self.smoothing = float(deadband), float(smoothing)
         keep = torch.ones(len(levels), dtype=torch.bool)
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
@@ -265,7 +265,7 @@ class Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
         return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
-                   cfg.decision_deadband)
+                   cfg.decision_deadband, cfg.decision_smoothing)
 
     def __call__(self, obs: dict[str, np.ndarray]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
@@ -291,12 +291,12 @@ class Policy:
         target = float(p @ self._levels)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder
             target = min(target, self._all_levels[action])
-        if self.deadband > 0.0:
+        if self.deadband > 0.0 or self.smoothing < 1.0:
             if controls is None:
-                raise ValueError("the deadband reads the held force from the controls; none were given")
+                raise ValueError("the deadband and the smoothing read the held force from the controls; none were given")
             held = float(controls[-1][0])
-            if target > -FIRM_BRAKE and abs(target - held) <= self.deadband:
-                target = held
+            if target > -FIRM_BRAKE:
+                target = held if abs(target - held) <= self.deadband else held + self.smoothing * (target - held)
         return Decision(action, target)
 
 

@@ -134,6 +134,30 @@ def test_the_deadband_keeps_the_held_force_near_the_target_but_never_holds_back_
         Config(**STUDENT, decision="mean", decision_deadband=-0.01)
 
 
+def test_the_smoothing_asks_a_share_of_the_way_to_the_target_but_never_lags_a_firm_brake():
+    rng = np.random.default_rng(6)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[FINE_LEVELS.index(0.2)] = 6.0
+    q = _fixed_outputs(logits)
+    free = Policy(q, "mean", FINE_LEVELS, 1.0)(_obs(rng)).target
+    assert free is not None
+    obs = _obs(rng)
+    obs["controls"][-1, 0] = held = -0.05
+    for share in (1.0, 0.5, 0.2):
+        d = Policy(q, "mean", FINE_LEVELS, 1.0, smoothing=share)(obs)
+        assert d.target == pytest.approx(float(np.float32(held)) + share * (free - float(np.float32(held))), abs=1e-12)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[FINE_LEVELS.index(-0.45)] = 6.0  # a firm brake: the argmax's level at once, as without smoothing
+    obs["controls"][-1, 0] = 0.1
+    assert Policy(_fixed_outputs(logits), "mean", FINE_LEVELS, 1.0, smoothing=0.2)(obs).target == pytest.approx(-0.45)
+    for bad in (0.0, 1.5):
+        with pytest.raises(ConfigError, match=r"\(0, 1\]") as e:
+            Config(**STUDENT, decision="mean", decision_smoothing=bad)
+        assert e.value.field == "decision_smoothing"
+    with pytest.raises(ConfigError, match="mean"):
+        Config(**STUDENT, decision_smoothing=0.5)
+
+
 def test_the_argmax_decision_is_the_greedy_action():
     torch.manual_seed(0)
     q, rng = QNetwork(n_actions=len(FINE_LEVELS), n_controls=2).eval(), np.random.default_rng(2)
