@@ -391,6 +391,8 @@ def _main(argv: list[str]) -> None:
                      help="the mean decision's full-brake share that brakes at once (Config.decision_brake_share; default: the checkpoint's)")
     dec.add_argument("--deadband", type=float, default=None,
                      help="force within which the mean decision keeps the held force (Config.decision_deadband; default: the checkpoint's)")
+    dec.add_argument("--smoothing", type=float, default=None,
+                     help="the share of the way to the mean's target asked each step (Config.decision_smoothing; default: the checkpoint's)")
     pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
     pol.add_argument("src", metavar="SRC.pt")
     pol.add_argument("dst", metavar="DST.pt", help="a new file")
@@ -399,8 +401,6 @@ def _main(argv: list[str]) -> None:
     avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
     avg.add_argument("--weights", type=float, nargs="+", default=None, metavar="W",
                      help="one positive weight per policy, normalised to sum to 1 (default: equal)")
-    dec.add_argument("--smoothing", type=float, default=None,
-                     help="the share of the way to the mean's target asked each step (Config.decision_smoothing; default: the checkpoint's)")
     a = ap.parse_args(argv)
     try:
         if a.command == "upgrade":

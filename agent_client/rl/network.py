@@ -172,7 +172,7 @@ class ScaledFrames:
     def __init__(self, frame_stack: int = 8, stack_stride: int = 1):
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self._span = (frame_stack - 1) * stack_stride + 1  # frames a full stack spans
-        self._rings: torch.Tensor | None = None  # [stride, 2 * frame_stack, H, W]
+        self._rings = torch.empty((stack_stride, 2 * frame_stack, FRAME_H, FRAME_W))
         self._pushed = 0
 
     def reset(self) -> None:
@@ -183,12 +183,9 @@ class ScaledFrames:
         """Add one preprocessed uint8 frame ``[H, W]``; the stack ``[frame_stack, H, W]``,
         oldest first, valid until the next push (a view into the rings)."""
         n, stride = self.frame_stack, self.stack_stride
-        if self._rings is None or self._rings.shape[2:] != frame.shape:
-            self._rings = torch.empty((stride, 2 * n, *frame.shape))
         i = self._pushed
         ring, slot = self._rings[i % stride], (i // stride) % n
-        torch.div(torch.from_numpy(frame), 255.0, out=ring[slot])  # scale_frames, into place
-        ring[slot + n] = ring[slot]
+        ring[slot] = ring[slot + n] = scale_frames(torch.from_numpy(frame))
         self._pushed += 1
         if self._pushed >= self._span:  # the stack is this ring's last n frames
             return ring[slot + 1 : slot + n + 1]
