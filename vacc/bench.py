@@ -329,7 +329,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         rows["update_cost"] = {"ms": ddqn_bench.update_cost(10 if quick else 30)["median_s"] * 1e3}
         bar.update(1)
         train_steps, starts = (600, 200) if quick else (6000, 1000)
-        rows["ddqn_training"] = ddqn_bench.training_rate(train_steps, starts)
+        rows["ddqn_training"] = ddqn_bench.training_rate(train_steps, starts, schedule="serial")
         rows["ddqn_training_parallel"] = ddqn_bench.training_rate(train_steps, starts, schedule="parallel")
         bar.update(1)
         rows["sb3_dqn_peer"] = bench_sb3.sb3_training_rate_isolated(train_steps, starts)

@@ -51,7 +51,7 @@ def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str,
         torch.set_num_threads(threads)
 
 
-def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = "parallel") -> dict[str, float]:
+def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule) -> dict[str, float]:
     """Training steps/s (act + env step over UDP + a gradient step every 8) with a real server."""
     cfg = Config(
         total_steps=steps, learning_starts=learning_starts, train_every=8, buffer_size=max(steps, 1000),
@@ -176,7 +176,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         "sample_latency": sample_latency(capacity=20_000 if quick else 100_000),
         "update_cost": update_cost(repeats=10 if quick else 30),
         "replay": replay_bytes_per_transition(),
-        "training_parallel": training_rate(steps, starts),
+        "training_parallel": training_rate(steps, starts, schedule="parallel"),
         "training_serial": training_rate(steps, starts, schedule="serial"),
     }
 

@@ -27,6 +27,8 @@ def test_quick_bench_reports_every_figure(tmp_path):
     figures = data["figures"]
     for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "lockstep_key", "render_rgb400", "agent_env", "decision_latency", "replay_sample", "update_cost", "ddqn_training", "ddqn_training_parallel", "replay", "training_peak_rss"):
         assert key in figures, key
+    # each training row measures the schedule its label names (the serial row once ran the parallel one)
+    assert (figures["ddqn_training"]["schedule"], figures["ddqn_training_parallel"]["schedule"]) == ("serial", "parallel")
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
