@@ -230,7 +230,8 @@ class Policy:
     :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
     full brake at least ``brake_share``, it acts at once too. With a ``deadband``, a target
     within that much force of the held one (the last force, the first of the observed
-    controls) keeps the held force, unless it brakes at least :data:`FIRM_BRAKE`.
+    controls) keeps the held force; with a ``smoothing`` below 1, the target is that share
+    of the way from the held force; neither where it brakes at least :data:`FIRM_BRAKE`.
 
     Args:
         q: the network.
@@ -239,6 +240,7 @@ class Policy:
         temperature: the softmax's temperature (the mean decision).
         brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
         deadband: force within which the held force stays (the mean decision; 0: off).
+        smoothing: the share of the way to the target asked each step (the mean decision; 1: off).
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
@@ -275,7 +277,7 @@ class Policy:
     def decide(self, out: torch.Tensor, controls: np.ndarray | None = None) -> Decision:
         """The decision from the network's outputs ``[A]`` for one observation, computed
         elsewhere (e.g. by :meth:`QNetwork.q_and_gap`), and its controls ``[S, C]`` (the
-        deadband reads the held force there); the same as :meth:`__call__`'s."""
+        deadband and the smoothing read the held force there); the same as :meth:`__call__`'s."""
         if self.decision == "argmax":
             return Decision(int(out.argmax().item()))
         out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
