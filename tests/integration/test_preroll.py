@@ -53,7 +53,7 @@ def test_a_ddqn_policy_engages_with_real_frames_of_the_approach(server):
             while obs["frame"] < 0:
                 policy.warm(obs)
                 obs = s.step(0.0)
-            stacks[preroll] = policy.warm(obs)["frames"]
+            stacks[preroll] = policy.warm(obs)["frames"].numpy().copy()  # a view into the controller's rings until the next frame
     cold, warm = stacks[0], stacks[policy.history_steps]
     assert all(np.array_equal(f, cold[0]) for f in cold)  # a cold start: one frame repeated
     assert np.array_equal(warm[-1], cold[-1])  # the same frame 0
