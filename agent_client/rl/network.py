@@ -193,7 +193,7 @@ class ScaledFrames:
         return torch.stack([self._rings[k % stride, (k // stride) % n] for k in stack_picks(self._pushed, n, stride)])
 
 
-def greedy_action(q: QNetwork, frames: np.ndarray, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
+def greedy_action(q: QNetwork, frames: np.ndarray | torch.Tensor, speeds: np.ndarray, controls: np.ndarray | None = None) -> int:
     """argmax_a Q(s, a) for one stacked observation (frames ``[S, H, W]``, speeds ``[S]``,
     controls ``[S, C]`` for a network that observes them)."""
     with torch.inference_mode():
@@ -266,7 +266,7 @@ class Policy:
         return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
                    cfg.decision_deadband, cfg.decision_smoothing)
 
-    def __call__(self, obs: dict[str, np.ndarray]) -> Decision:
+    def __call__(self, obs: dict[str, Any]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
         if self.decision == "argmax":
             return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
