@@ -29,8 +29,9 @@ class DDQNController:
     held-force action types ("steps", "ramp", "ramp-fine"), its own last force and the set speed the driver chose.
 
     A network with a gap head (``--aux-gap``) also estimates the gap from the same
-    frames; ``vacc drive`` logs it as ``gap_est`` (:attr:`log_columns`). It is an output
-    to inspect, never used to decide.
+    frames, and one with a closing head (``--aux-closing``) the closing speed; ``vacc
+    drive`` logs them as ``gap_est`` and ``closing_est`` (:attr:`log_columns`). They are
+    outputs to inspect, never used to decide.
 
     Args:
         q: the Q-network.
@@ -42,7 +43,7 @@ class DDQNController:
     def __init__(self, q: QNetwork, cfg: Config):
         self.q, self.cfg = q.eval(), cfg
         self.policy = Policy.of(self.q, cfg)
-        self.log_columns: tuple[str, ...] = ("gap_est",) if q.gap_head is not None else ()
+        self.log_columns: tuple[str, ...] = tuple(c for c, head in (("gap_est", q.gap_head), ("closing_est", q.closing_head)) if head is not None)
         self.log_values: tuple[float, ...] = ()  # of the last decision, one per log column
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
         self.frames = ScaledFrames(cfg.frame_stack, cfg.stack_stride)
@@ -89,19 +90,20 @@ class DDQNController:
         """The decision for a stacked observation (frames, speeds and, if observed, controls)."""
         return self.policy(stacked)
 
-    def _q_and_gap(self, stacked: dict[str, Any]) -> tuple[torch.Tensor, float]:
-        """The outputs ``[A]`` and the gap head's estimate [m] for a stacked observation."""
+    def _with_heads(self, stacked: dict[str, Any]) -> tuple[torch.Tensor, tuple[float, ...]]:
+        """The outputs ``[A]`` and the heads' estimates (:attr:`log_columns`: the gap [m], the
+        closing speed [m/s]) for a stacked observation."""
         with torch.inference_mode():
-            q, raw = self.q.q_and_gap(*batch_of_one(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls")))
-        return q[0], float(QNetwork.gap_estimate(raw)[0])
+            q, gap, closing = self.q.with_heads(*batch_of_one(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls")))
+        estimates = (None if gap is None else QNetwork.gap_estimate(gap), None if closing is None else QNetwork.closing_estimate(closing))
+        return q[0], tuple(float(e[0]) for e in estimates if e is not None)
 
     def __call__(self, obs: dict[str, Any]) -> float:
         """The force u in [-1, 1] for a session observation carrying a gray/RGB image."""
         stacked = self.warm(obs)
-        if self.log_columns:  # one pass for the decision and the estimate
-            q, gap = self._q_and_gap(stacked)
+        if self.log_columns:  # one pass for the decision and the estimates
+            q, self.log_values = self._with_heads(stacked)
             d = self.policy.decide(q, stacked.get("controls"))
-            self.log_values = (gap,)
         else:
             d = self.act(stacked)
         return self.actions.force(d.action) if d.target is None else self.actions.force_toward(d.target)  # type: ignore[attr-defined]

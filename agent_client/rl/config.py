@@ -62,6 +62,7 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
         for wanted, field, option, reason in (
             (cfg.teacher != "none", "teacher", f"--teacher {cfg.teacher}", "labels no actions"),
             (cfg.aux_gap > 0.0, "aux_gap", f"--aux-gap {cfg.aux_gap:g}", "stores no gaps"),
+            (cfg.aux_closing > 0.0, "aux_closing", f"--aux-closing {cfg.aux_closing:g}", "stores no gaps"),
             (cfg.brake_margin > 0.0, "brake_margin", f"--brake-margin {cfg.brake_margin:g}", "stores no gaps"),
             (cfg.preroll, "preroll", "--preroll", "starts its episodes cold"),
             (cfg.action != "levels", "action", f"--action {cfg.action}", "stores no controls"),
@@ -215,6 +216,12 @@ class Config:
     privileged: it is the head's training target, stored beside the replay, and never an
     input; the Q-values (or the student's outputs) do not read the head. 0: no head, as
     every run before it. vacc drive logs the estimate (gap_est) of a model that has one."""
+    aux_closing: float = 0.0
+    """Weight of an auxiliary loss like aux_gap's: a head estimates the closing speed, the gap's
+    fall over the next control step [m/s] (the lead's speed relative to the host's, which
+    the frames show only as a change of size over the stack), clipped to +-20 m/s and
+    scaled by 5 m/s, with the Huber loss. Privileged in the same way: a target stored
+    beside the replay, never an input. vacc drive logs the estimate (closing_est). 0: off."""
     brake_margin: float = 0.0
     """(Double DQN) weight of a large-margin loss on the full brake (DQfD's, margin
     :data:`~agent_client.rl.learner.BRAKE_MARGIN`) in the replayed states where only a hard
@@ -295,6 +302,8 @@ class Config:
             raise bad("teacher_steps", "must be >= 1")
         if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):
             raise bad("aux_gap", f"must be finite and >= 0, got {self.aux_gap}")
+        if not (math.isfinite(self.aux_closing) and self.aux_closing >= 0.0):
+            raise bad("aux_closing", f"must be finite and >= 0, got {self.aux_closing}")
         if not (math.isfinite(self.brake_margin) and self.brake_margin >= 0.0):
             raise bad("brake_margin", f"must be finite and >= 0, got {self.brake_margin}")
         if self.brake_margin > 0.0 and self.teacher != "none":
@@ -352,6 +361,12 @@ class Config:
                 eval_episode(name)  # a typo fails here, not at the first evaluation hours later
             except ValueError as exc:
                 raise ConfigError("eval_trajectories", str(exc)) from None
+
+    @property
+    def stores_gaps(self) -> bool:
+        """Whether the replay keeps each observation's gap: the privileged target of the
+        auxiliary heads and the brake margin's emergencies, never an input."""
+        return self.aux_gap > 0.0 or self.aux_closing > 0.0 or self.brake_margin > 0.0
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:

@@ -42,7 +42,15 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import Decision, Policy, QNetwork, gap_head_target, transfer_weights
+from agent_client.rl.network import (
+    Decision,
+    Policy,
+    QNetwork,
+    closing_head_target,
+    closing_speed,
+    gap_head_target,
+    transfer_weights,
+)
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from protocol.constants import A_MIN, DESIRED_GAP, MIN_GAP
@@ -126,7 +134,7 @@ def emergencies(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch
     """``[B]`` bool: the states whose closing speed, (gap - next gap) / ``dt``, needs at least
     :data:`EMERGENCY_SHARE` of the full brake to stop :data:`MIN_GAP` short of the lead (at
     the lead's speed; inside MIN_GAP and closing: always). NaN gaps (none stored): never."""
-    closing = (gaps - next_gaps) / dt  # [B] m/s, NaN where no gap is stored
+    closing = closing_speed(gaps, next_gaps, dt)  # [B] m/s, NaN where no gap is stored
     room = gaps - MIN_GAP
     need = closing.square() / (2.0 * room.clamp(min=1e-3))
     hit = (closing > 0.0) & ((room <= 0.0) | (need >= EMERGENCY_SHARE * -A_MIN))
@@ -350,30 +358,35 @@ class Learner:
 
     # ------------------------------------------------------------------ learning
 
-    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float, float | None] | None:
+    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float, dict[str, float]] | None:
         """One gradient step on a replay batch: Double DQN, or with a teacher the
         cross-entropy of the network's outputs (as logits) to the teacher's labels;
-        logs losses at ``log_step``. With ``cfg.aux_gap``, the gap head's Huber loss on
-        the stored gaps is added, times that weight; with ``cfg.brake_margin``, the
-        full brake's large-margin loss in the batch's emergencies (:func:`emergencies`).
+        logs losses at ``log_step``. With ``cfg.aux_gap`` (``cfg.aux_closing``), the gap
+        (closing) head's Huber loss on the stored gaps is added, times that weight; with
+        ``cfg.brake_margin``, the full brake's large-margin loss in the batch's
+        emergencies (:func:`emergencies`).
 
         Returns:
-            (the TD or teacher loss without the gap head's, mean output of the stored
-            actions, the gap head's loss or None) when ``log_step`` is given.
+            (the TD or teacher loss without the heads', mean output of the stored actions,
+            each head's loss by its log name) when ``log_step`` is given.
         """
         cfg, dev = self.cfg, self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
-        if cfg.aux_gap > 0.0:
-            q_all, gap_raw = self.q.q_and_gap(frames, speeds, controls)  # [B, A], [B]
-            gap_loss: torch.Tensor | None = F.smooth_l1_loss(gap_raw, gap_head_target(b.gaps.to(dev)))
-        else:
-            q_all, gap_loss = self.q(frames, speeds, controls), None  # [B, A]
+        q_all, gap_raw, closing_raw = self.q.with_heads(frames, speeds, controls)  # [B, A], [B] or None each
         q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
         if self.teacher is not None:
             loss = F.cross_entropy(q_all, b.actions.to(dev), weight=self.label_weights)
         else:
             loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
-        total = loss if gap_loss is None else loss + cfg.aux_gap * gap_loss
+        head_losses: dict[str, torch.Tensor] = {}
+        total = loss
+        if gap_raw is not None:
+            head_losses["losses/gap_head"] = F.smooth_l1_loss(gap_raw, gap_head_target(b.gaps.to(dev)))
+            total = total + cfg.aux_gap * head_losses["losses/gap_head"]
+        if closing_raw is not None:
+            target = closing_head_target(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)
+            head_losses["losses/closing_head"] = F.smooth_l1_loss(closing_raw, target)
+            total = total + cfg.aux_closing * head_losses["losses/closing_head"]
         if cfg.brake_margin > 0.0:
             emergency = emergencies(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)
             total = total + cfg.brake_margin * brake_margin_loss(q_all, emergency)
@@ -384,7 +397,7 @@ class Learner:
         self.updates += 1
         if log_step is None:
             return None
-        return loss.item(), q_taken.mean().item(), None if gap_loss is None else gap_loss.item()
+        return loss.item(), q_taken.mean().item(), {name: h.item() for name, h in head_losses.items()}
 
     @torch.no_grad()
     def _td_target(self, b: ReplaySamples) -> torch.Tensor:
@@ -421,14 +434,13 @@ class Learner:
         batch = memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
         self._jobs.append(self._worker.submit(lambda: self._pending(self.update(batch, log_step), log_step)))
 
-    def _pending(self, losses: tuple[float, float, float | None] | None, step: int | None) -> None:
+    def _pending(self, losses: tuple[float, float, dict[str, float]] | None, step: int | None) -> None:
         if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
             names = ("losses/teacher_ce", "losses/teacher_logit") if self.teacher is not None else ("losses/td_loss", "losses/q_values")
             self._pending_scalars += [(names[0], losses[0], step), (names[1], losses[1], step)]
-            if losses[2] is not None:
-                self._pending_scalars.append(("losses/gap_head", losses[2], step))
+            self._pending_scalars += [(name, value, step) for name, value in losses[2].items()]
 
-    def _log_losses(self, losses: tuple[float, float, float | None] | None, step: int | None) -> None:
+    def _log_losses(self, losses: tuple[float, float, dict[str, float]] | None, step: int | None) -> None:
         self._pending(losses, step)
         for name, value, at in self._pending_scalars:
             self.log.add(name, value, at)

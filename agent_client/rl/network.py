@@ -23,11 +23,14 @@ from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
     "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
-    "GAP_HEAD_RANGE", "gap_head_target", "batch_of_one", "scale_frames", "ScaledFrames",
+    "GAP_HEAD_RANGE", "gap_head_target", "CLOSING_HEAD_RANGE", "closing_head_target", "closing_speed", "batch_of_one", "scale_frames",
+    "ScaledFrames",
 ]  # fmt: skip
 
 GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
 GAP_HEAD_RANGE = (1.0, 150.0)  # [m] the gap head's target is clipped to this: beyond 150 m only "far" matters
+CLOSING_HEAD_SCALE = 5.0  # [m/s] the closing head's output is the closing speed over this
+CLOSING_HEAD_RANGE = 20.0  # [m/s] its target is clipped to +-this (a car cutting in jumps the gap)
 
 
 def scale_frames(frames: torch.Tensor) -> torch.Tensor:
@@ -38,6 +41,18 @@ def scale_frames(frames: torch.Tensor) -> torch.Tensor:
 def gap_head_target(gap: torch.Tensor) -> torch.Tensor:
     """The gap head's training target for gaps [m]: log(clip(gap, 1, 150) / 55)."""
     return torch.log(gap.clamp(*GAP_HEAD_RANGE) / GAP_HEAD_SCALE)
+
+
+def closing_speed(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
+    """[m/s] (gap - next gap) / ``dt``, from gaps stored one control step apart: positive
+    while the host gains on the lead (NaN where none were stored)."""
+    return (gaps - next_gaps) / dt
+
+
+def closing_head_target(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
+    """The closing head's training target: :func:`closing_speed`, clipped to +-20 m/s, over 5 m/s."""
+    closing = closing_speed(gaps, next_gaps, dt)
+    return closing.clamp(-CLOSING_HEAD_RANGE, CLOSING_HEAD_RANGE) / CLOSING_HEAD_SCALE
 
 
 class QNetwork(nn.Module):
@@ -56,10 +71,14 @@ class QNetwork(nn.Module):
     (:data:`agent_client.actions.CONTROLS`: its last force and the driver's set speed):
     there is no way to give it the gap. With ``gap_head`` (``Config.aux_gap``), a second
     output layer on the hidden layer estimates the gap (:meth:`q_and_gap`), trained on the
-    simulator's gap as an auxiliary loss; the Q-values do not read it.
+    simulator's gap as an auxiliary loss; the Q-values do not read it. ``closing_head``
+    (``Config.aux_closing``) does the same for the closing speed (:meth:`with_heads`).
     """
 
-    def __init__(self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0, gap_head: bool = False):
+    def __init__(
+        self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0,
+        gap_head: bool = False, closing_head: bool = False,
+    ):  # fmt: skip
         super().__init__()
         self.speed_scale, self.n_controls = speed_scale, n_controls
         # force as it is (in [-1, 1]); set speed over the speed scale
@@ -81,6 +100,7 @@ class QNetwork(nn.Module):
         self._linears: tuple[nn.Linear, ...] = tuple(m for m in self.fc if isinstance(m, nn.Linear))
         # created after the layers above, so that a network with the head draws their initial weights as one without
         self.gap_head = nn.Linear(256, 1) if gap_head else None
+        self.closing_head = nn.Linear(256, 1) if closing_head else None
 
     @classmethod
     def of(cls, cfg: Any) -> QNetwork:
@@ -88,7 +108,7 @@ class QNetwork(nn.Module):
         from agent_client.actions import make_action_type
 
         actions = make_action_type(cfg.action)
-        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0)
+        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0, closing_head=cfg.aux_closing > 0.0)
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """Q-values.
@@ -112,9 +132,18 @@ class QNetwork(nn.Module):
         :meth:`gap_estimate` in metres), from one pass. Only for a network with the head."""
         if self.gap_head is None:
             raise ValueError("this network has no gap head (trained without --aux-gap)")
+        q, gap, _ = self.with_heads(frames, speeds, controls)
+        assert gap is not None
+        return q, gap
+
+    def with_heads(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """From one pass: the Q-values ``[B, A]``, and the raw outputs ``[B]`` of the gap head
+        and of the closing head (:meth:`gap_estimate`, :meth:`closing_estimate`), None where
+        the network has no such head."""
         hidden = self._hidden(frames, speeds, controls)
         out = self._linears[1]
-        return F.linear(hidden, out.weight, out.bias), F.linear(hidden, self.gap_head.weight, self.gap_head.bias)[:, 0]
+        heads = [None if h is None else F.linear(hidden, h.weight, h.bias)[:, 0] for h in (self.gap_head, self.closing_head)]
+        return F.linear(hidden, out.weight, out.bias), heads[0], heads[1]
 
     @property
     def device(self) -> torch.device:
@@ -125,6 +154,11 @@ class QNetwork(nn.Module):
     def gap_estimate(raw: torch.Tensor) -> torch.Tensor:
         """The gap head's raw output in metres."""
         return GAP_HEAD_SCALE * torch.exp(raw)
+
+    @staticmethod
+    def closing_estimate(raw: torch.Tensor) -> torch.Tensor:
+        """The closing head's raw output as a closing speed [m/s] (positive: gaining on the lead)."""
+        return CLOSING_HEAD_SCALE * raw
 
     def _hidden(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None) -> torch.Tensor:
         """The hidden layer's activations ``[B, 256]``."""

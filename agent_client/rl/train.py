@@ -95,7 +95,7 @@ def train(
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
     learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval)
-    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.aux_gap > 0.0 or cfg.brake_margin > 0.0)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps)
     state = LoopState(**{k: v for k, v in learner.saved.items() if k in LoopState.__dataclass_fields__})
     env = None
     try:
