@@ -39,7 +39,9 @@ class FrameStacker:
         if frame_stack < 1 or stack_stride < 1:
             raise ValueError("frame_stack and stack_stride must be >= 1")
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
-        self._history: deque[tuple[np.ndarray, float, np.ndarray | None]] = deque(maxlen=(frame_stack - 1) * stack_stride + 1)
+        span = (frame_stack - 1) * stack_stride + 1
+        self._history: deque[tuple[np.ndarray, float, np.ndarray | None]] = deque(maxlen=span)
+        self._picks: list[list[int]] = [[]] + [stack_picks(k, frame_stack, stack_stride) for k in range(1, span + 1)]  # by history length
 
     def reset(self) -> None:
         """Forget the previous episode."""
@@ -58,7 +60,7 @@ class FrameStacker:
         """
         self._history.append((frame, v_host, controls))
         history = list(self._history)
-        picks = [history[i] for i in stack_picks(len(history), self.frame_stack, self.stack_stride)]
+        picks = [history[i] for i in self._picks[len(history)]]
         obs = {"speeds": np.array([min(v, MAX_SPEED) for _, v, _ in picks], dtype=np.float32)}
         if frames:
             obs["frames"] = np.stack([f for f, _, _ in picks])

@@ -33,9 +33,10 @@ CLOSING_HEAD_SCALE = 5.0  # [m/s] the closing head's output is the closing speed
 CLOSING_HEAD_RANGE = 20.0  # [m/s] its target is clipped to +-this (a car cutting in jumps the gap)
 
 
-def scale_frames(frames: torch.Tensor) -> torch.Tensor:
-    """uint8 frames as the network's input: float, /255 (in one pass: ``frames.float() / 255.0`` to the bit)."""
-    return torch.div(frames, 255.0)
+def scale_frames(frames: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """uint8 frames as the network's input: float, /255 (in one pass: ``frames.float() / 255.0``
+    to the bit), into ``out`` if given."""
+    return torch.div(frames, 255.0, out=out)
 
 
 def gap_head_target(gap: torch.Tensor) -> torch.Tensor:
@@ -206,7 +207,10 @@ class ScaledFrames:
     def __init__(self, frame_stack: int = 8, stack_stride: int = 1):
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         self._span = (frame_stack - 1) * stack_stride + 1  # frames a full stack spans
-        self._rings = torch.empty((stack_stride, 2 * frame_stack, FRAME_H, FRAME_W))
+        self._rings = rings = torch.empty((stack_stride, 2 * frame_stack, FRAME_H, FRAME_W))
+        # every view made once: indexing a tensor from Python costs microseconds a decision
+        self._slots = [[(rings[r, k], rings[r, k + frame_stack]) for k in range(frame_stack)] for r in range(stack_stride)]
+        self._stacks = [[rings[r, k + 1 : k + frame_stack + 1] for k in range(frame_stack)] for r in range(stack_stride)]
         self._pushed = 0
 
     def reset(self) -> None:
@@ -218,11 +222,12 @@ class ScaledFrames:
         oldest first, valid until the next push (a view into the rings)."""
         n, stride = self.frame_stack, self.stack_stride
         i = self._pushed
-        ring, slot = self._rings[i % stride], (i // stride) % n
-        ring[slot] = ring[slot + n] = scale_frames(torch.from_numpy(frame))
+        ring, slot = i % stride, (i // stride) % n
+        first, second = self._slots[ring][slot]
+        second.copy_(scale_frames(torch.from_numpy(frame), out=first))
         self._pushed += 1
         if self._pushed >= self._span:  # the stack is this ring's last n frames
-            return ring[slot + 1 : slot + n + 1]
+            return self._stacks[ring][slot]
         # episode start: nothing overwritten yet, so history index = push count
         return torch.stack([self._rings[k % stride, (k // stride) % n] for k in stack_picks(self._pushed, n, stride)])
 
