@@ -28,7 +28,7 @@ __all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUM
 
 SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
-TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin")  # who labels the states in teacher (DAgger) runs
+TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -193,7 +193,10 @@ class Config:
     6 % less energy than acc-55 through the ramp on random EV leads; "acc-55-gentle-margin": the
     same, stopping 3 m further back (as "eco-margin" below). "acc-55-eco(-margin)": the gentle
     law with gamma 3.0, matching the lead's speed harder: 0.7 % less energy through the ramp
-    on random EV leads, worst gap RMSE 4.95 m against 4.79 m. "eco": the ACC law on the eco reward's desired gap,
+    on random EV leads, worst gap RMSE 4.95 m against 4.79 m. "acc-55-calm(-margin)" and
+    "acc-55-calmer(-margin)": the gentle law with lower gains (beta 0.3 and 0.25, gamma 1.5),
+    which lose less energy than it when the lead's speed is seen half a second late, as a
+    student sees it. "eco": the ACC law on the eco reward's desired gap,
     clip(2 s x speed, 5 m, 55 m), with gentler gains (beta 0.1, gamma 0.3): 3 % less fuel
     than the ACC on random ICE leads. "eco-margin": the eco teacher stopping 8 m behind a
     standing car and aiming 6 m behind a slower one (the ACC: 5 m and 3 m), so that a
