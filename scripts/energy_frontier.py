@@ -12,7 +12,9 @@ script checks):
 * causal laws over a grid of gains (beta, gamma), with the eco-margin gaps, through the
   ramp-fine actuator toward the law's force (what a student with the mean decision
   approximates). EV: the ACC law on a fixed 55 m gap with a 3 m/s^2 braking cap (the
-  gentle 55 m teachers). ICE: the eco teachers' law, a 2 s time gap capped at 55 m;
+  gentle 55 m teachers). ICE: the eco teachers' law, a 2 s time gap capped at 55 m.
+  With ``--lag TAU`` the laws see the closing speed (host minus lead speed) through a
+  first-order lag of TAU seconds, as a student that reads it from the camera does;
 * preview (EV only; its model is eq. 6): energy.frontier.preview_bound over a grid of gap
   weights, from the ACC's initial speed and gap to its final speed: what a follower that
   knew the lead's whole future could reach.
@@ -87,14 +89,21 @@ def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint:
     return run
 
 
-def replay(run: dict[str, np.ndarray], law: AccController, ramp: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Host speed and gap behind the recorded lead under ``law`` (through the ramp-fine actuator if ``ramp``)."""
+def replay(run: dict[str, np.ndarray], law: AccController, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Host speed and gap behind the recorded lead under ``law`` (through the ramp-fine
+    actuator if ``ramp``), the law seeing the closing speed through a first-order lag of
+    ``lag`` seconds (0: as it is)."""
     t, x_lead = run["t"], run["x_lead"]
     v, x = float(run["v_host"][0]), float(x_lead[0] - run["gap"][0])
     actuator = FineRamp()
     vs, gaps = [v], [x_lead[0] - x]
+    seen = v - run["v_lead"][0]  # [m/s] the closing speed as the law sees it
     for k in range(len(t) - 1):
-        u = law({"gap": x_lead[k] - x, "v_host": v, "v_lead": run["v_lead"][k], "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
+        v_lead = run["v_lead"][k]
+        if lag > 0.0:
+            seen += min(DT / lag, 1.0) * (v - v_lead - seen)
+            v_lead = v - seen
+        u = law({"gap": x_lead[k] - x, "v_host": v, "v_lead": v_lead, "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
         if ramp:
             u = actuator.force_toward(u)
         v_next = advance_speed(v, accel_of_force(u), DT, DEFAULT_SET_SPEED)
@@ -117,6 +126,7 @@ def main() -> None:
     p.add_argument("--out", default=None, help="output folder (default runs/energy-frontier-{random,tests}, with -ice for the ICE car)")
     p.add_argument("--betas", default=None, help="gap gains [1/s^2], comma-separated (default: the scenario's grid)")
     p.add_argument("--gammas", default=None, help="speed-difference gains [1/s], comma-separated (default: the scenario's grid)")
+    p.add_argument("--lag", type=float, default=0.0, help="[s] the laws see the closing speed through a first-order lag of this (default 0)")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
@@ -142,8 +152,8 @@ def main() -> None:
     betas = a.betas.split(",") if a.betas else BETAS[sc]
     gammas = a.gammas.split(",") if a.gammas else GAMMAS[sc]
     for beta, gamma in itertools.product(map(float, betas), map(float, gammas)):
-        done = [replay(r, teacher_law(sc, beta, gamma), ramp=True) for r in runs]
-        rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}", "beta": beta, "gamma": gamma,
+        done = [replay(r, teacher_law(sc, beta, gamma), ramp=True, lag=a.lag) for r in runs]
+        rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}" + (f" lag {a.lag:g} s" if a.lag else ""), "beta": beta, "gamma": gamma, "lag": a.lag,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
     for lam in map(float, a.lams.split(",") if sc == "ev" else ()):
         pts = [preview_bound(r["t"], r["x_lead"], r["v_host"][0], r["gap"][0], r["v_host"][-1], lam) for r in runs]
