@@ -174,7 +174,9 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert make_teacher("eco")(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin"}
+    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin",
+                             "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin",
+                             "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin"}  # fmt: skip
 
 
 def test_the_gentle_55_m_teacher_caps_its_braking_but_not_its_collision_avoidance():
@@ -202,6 +204,21 @@ def test_the_eco_55_m_teacher_matches_the_leads_speed_harder_than_the_gentle_one
     assert accel_of_force(eco55(at_gap)) == pytest.approx(1.5 * accel_of_force(gentle(at_gap)))  # gamma 3.0 against 2.0
     opening = {"gap": 27.7, "v_host": 14.0, "v_lead": 14.0, "a_lead": 0.0, "set_speed": 33.5}
     assert accel_of_force(eco55(opening)) == pytest.approx(-3.0)  # the same cap
+
+
+def test_the_calm_55_m_teachers_answer_the_gap_and_the_leads_speed_more_gently_with_the_same_cap():
+    from agent_client.actions import accel_of_force
+    from agent_client.rl.learner import make_teacher
+
+    gentle, calm, calmer = make_teacher("acc-55-gentle"), make_teacher("acc-55-calm"), make_teacher("acc-55-calmer")
+    assert calm.reference_gap(20.0) == calmer.reference_gap(20.0) == 55.0 and calm.decel_cap == calmer.decel_cap == gentle.decel_cap
+    faster_lead = {"gap": 55.0, "v_host": 20.0, "v_lead": 20.5, "a_lead": 0.0, "set_speed": 33.5}
+    assert accel_of_force(calm(faster_lead)) == pytest.approx(0.75 * accel_of_force(gentle(faster_lead)))  # gamma 1.5 against 2.0
+    assert accel_of_force(calmer(faster_lead)) == pytest.approx(accel_of_force(calm(faster_lead)))
+    far = {"gap": 57.0, "v_host": 20.0, "v_lead": 20.0, "a_lead": 0.0, "set_speed": 33.5}
+    assert accel_of_force(calmer(far)) == pytest.approx(accel_of_force(calm(far)) * 0.25 / 0.3)  # beta 0.25 against 0.3
+    assert accel_of_force(calm(far)) == pytest.approx(accel_of_force(gentle(far)) * 0.3 / 0.4)
+    assert make_teacher("acc-55-calm-margin").d_safe == make_teacher("acc-55-gentle-margin").d_safe == 8.0  # stops as far back
 
 
 def test_the_firm_eco_teacher_opens_a_short_gap_faster_on_the_same_desired_gap():
