@@ -41,7 +41,7 @@ class FrameStacker:
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
         span = (frame_stack - 1) * stack_stride + 1
         self._history: deque[tuple[np.ndarray, float, np.ndarray | None]] = deque(maxlen=span)
-        self._picks: list[list[int]] = [[]] + [stack_picks(k, frame_stack, stack_stride) for k in range(1, span + 1)]  # by history length
+        self._picks = [stack_picks(k, frame_stack, stack_stride) for k in range(1, span + 1)]  # by history length - 1
 
     def reset(self) -> None:
         """Forget the previous episode."""
@@ -60,7 +60,7 @@ class FrameStacker:
         """
         self._history.append((frame, v_host, controls))
         history = list(self._history)
-        picks = [history[i] for i in self._picks[len(history)]]
+        picks = [history[i] for i in self._picks[len(history) - 1]]
         obs = {"speeds": np.array([min(v, MAX_SPEED) for _, v, _ in picks], dtype=np.float32)}
         if frames:
             obs["frames"] = np.stack([f for f, _, _ in picks])

@@ -130,6 +130,8 @@ def main() -> None:
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
+    if not a.lag >= 0.0:
+        p.error(f"--lag: a lag is a time, >= 0 s; got {a.lag:g}")
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
     sc, unit = a.scenario, UNIT[a.scenario]
     out = Path(a.out or f"runs/energy-frontier-{'tests' if a.tests else 'random'}{'-ice' if sc == 'ice' else ''}")
