@@ -13,8 +13,10 @@ script checks):
   ramp-fine actuator toward the law's force (what a student with the mean decision
   approximates). EV: the ACC law on a fixed 55 m gap with a 3 m/s^2 braking cap (the
   gentle 55 m teachers). ICE: the eco teachers' law, a 2 s time gap capped at 55 m.
-  With ``--lag TAU`` the laws see the closing speed (host minus lead speed) through a
-  first-order lag of TAU seconds, as a student that reads it from the camera does;
+  With ``--lag TAU`` the laws' following term sees the closing speed (host minus lead
+  speed) through a first-order lag of TAU seconds, as a student that reads it from the
+  camera does (agent_client.controllers.acc.LateClosing; their collision-avoidance
+  limit reads the true speeds);
 * preview (EV only; its model is eq. 6): energy.frontier.preview_bound over a grid of gap
   weights, from the ACC's initial speed and gap to its final speed: what a follower that
   knew the lead's whole future could reach.
@@ -38,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from agent_client.actions import FineRamp
-from agent_client.controllers.acc import AccController
+from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.rewards import CONTROL_PERIOD as DT
 from agent_client.rewards import ECO_TIME_GAP
 from agent_client.rl.learner import TEACHER_55_GENTLE, TEACHER_MARGIN_GAPS
@@ -91,19 +93,15 @@ def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint:
 
 def replay(run: dict[str, np.ndarray], law: AccController, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Host speed and gap behind the recorded lead under ``law`` (through the ramp-fine
-    actuator if ``ramp``), the law seeing the closing speed through a first-order lag of
-    ``lag`` seconds (0: as it is)."""
+    actuator if ``ramp``), the law's following term seeing the closing speed through a
+    first-order lag of ``lag`` seconds (0: as it is)."""
     t, x_lead = run["t"], run["x_lead"]
     v, x = float(run["v_host"][0]), float(x_lead[0] - run["gap"][0])
     actuator = FineRamp()
     vs, gaps = [v], [x_lead[0] - x]
-    seen = v - run["v_lead"][0]  # [m/s] the closing speed as the law sees it
+    driver: AccController | LateClosing = LateClosing(law, lag, DT) if lag > 0.0 else law
     for k in range(len(t) - 1):
-        v_lead = run["v_lead"][k]
-        if lag > 0.0:
-            seen += min(DT / lag, 1.0) * (v - v_lead - seen)
-            v_lead = v - seen
-        u = law({"gap": x_lead[k] - x, "v_host": v, "v_lead": v_lead, "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
+        u = driver({"gap": x_lead[k] - x, "v_host": v, "v_lead": run["v_lead"][k], "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
         if ramp:
             u = actuator.force_toward(u)
         v_next = advance_speed(v, accel_of_force(u), DT, DEFAULT_SET_SPEED)

@@ -35,13 +35,13 @@ own limiter holds it as well.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from agent_client.actions import force_of_accel
 from protocol.scenarios import DEFAULT_SET_SPEED
 
-__all__ = ["AccController", "force_of_accel"]
+__all__ = ["AccController", "LateClosing", "force_of_accel"]
 
 V_STANDING = 0.1  # [m/s] a lead slower than this stands: stop d_safe behind it
 
@@ -77,14 +77,17 @@ class AccController:
         """Speed-control acceleration [m/s^2] toward the set speed [m/s]."""
         return self.k_speed * (set_speed - v_host)
 
-    def __call__(self, obs: dict[str, Any]) -> float:
+    def __call__(self, obs: dict[str, Any], seen_closing: float | None = None) -> float:
         """The force u for an observation with ``gap``, ``v_host``, ``v_lead``, ``a_lead`` and ``set_speed``.
 
         An observation without ``set_speed`` (a hand-made one) cruises at the
-        default 33.5 m/s.
+        default 33.5 m/s. ``seen_closing`` [m/s]: the closing speed the law's following term
+        reads instead of the true one (:class:`LateClosing`); the collision-avoidance limit
+        always reads the true speeds.
         """
         gap, v, v_lead = obs["gap"], obs["v_host"], obs["v_lead"]
-        a_ref = max(self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_lead - v), -self.decel_cap)
+        v_followed = v_lead if seen_closing is None else v - seen_closing
+        a_ref = max(self.beta * (gap - self.reference_gap(v)) + self.gamma * (v_followed - v), -self.decel_cap)
         a_ref = min(a_ref, self.cruise_accel(v, obs.get("set_speed", DEFAULT_SET_SPEED)))
         closing = v - v_lead  # [m/s]
         d_aim = self.d_safe if v_lead < V_STANDING else self.d_min
@@ -92,3 +95,37 @@ class AccController:
             a_safe = min(obs.get("a_lead", 0.0), 0.0) - closing**2 / (2.0 * max(gap - d_aim, 0.1))
             a_ref = min(a_ref, a_safe)
         return force_of_accel(a_ref)
+
+
+@dataclass
+class LateClosing:
+    """An ACC law whose following term sees the closing speed (host minus lead speed)
+    through a first-order lag of ``lag`` seconds, as a student that reads it from the
+    camera's frame stack does (about half a second late: docs/training.md); its
+    collision-avoidance limit still reads the true speeds. As a DAgger teacher its
+    following labels are ones a camera student can reproduce, not ones that need the lead's
+    speed at once; ``scripts/energy_frontier.py --lag`` replays the same law.
+    """
+
+    law: AccController
+    lag: float  # [s] the lag's time constant (> 0)
+    dt: float  # [s] the control period, one update per call
+    _seen: float | None = field(default=None, init=False, repr=False)  # [m/s] the closing speed as seen
+
+    def __post_init__(self) -> None:
+        if not self.lag > 0.0 or not self.dt > 0.0:
+            raise ValueError(f"LateClosing: lag and dt must be > 0 s, got lag {self.lag!r}, dt {self.dt!r}")
+
+    @property
+    def name(self) -> str:
+        return f"{self.law.name}-late"
+
+    def reset(self) -> None:
+        """A new episode: the next call sees its closing speed as it is."""
+        self._seen = None
+
+    def __call__(self, obs: dict[str, Any]) -> float:
+        """The law's force, its following term on the closing speed as seen."""
+        closing = obs["v_host"] - obs["v_lead"]
+        self._seen = closing if self._seen is None else self._seen + min(self.dt / self.lag, 1.0) * (closing - self._seen)
+        return self.law(obs, seen_closing=self._seen)

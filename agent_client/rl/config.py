@@ -234,6 +234,12 @@ class Config:
     Beside the TD loss, it ranks the full brake first in the rare states that decide a
     collision, which the TD targets reach only through a few crashes. The gap is privileged:
     a training signal, stored beside the replay as for aux_gap, never an input. 0: off."""
+    teacher_lag: float = 0.0
+    """[s] (teacher) the teacher's following term sees the closing speed (host minus lead
+    speed) through a first-order lag of this, as a student that reads it from its frame
+    stack does (about 0.5 s); its collision-avoidance limit still reads the true speeds.
+    Its following labels are then ones the student can reproduce. 0: as it is, as every
+    run before the thirteenth session."""
     teacher_steps: int = 50_000
     """(teacher) steps over which the share of steps the teacher drives (DAgger's beta)
     falls linearly from 1 to 0; the student drives the rest, greedy but for epsilon."""
@@ -301,6 +307,10 @@ class Config:
             raise bad("brake_weight", "must be > 0")
         if self.brake_weight != 1.0 and self.teacher == "none":
             raise bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
+        if not (math.isfinite(self.teacher_lag) and self.teacher_lag >= 0.0):
+            raise bad("teacher_lag", f"must be finite and >= 0 s, got {self.teacher_lag}")
+        if self.teacher_lag > 0.0 and self.teacher == "none":
+            raise bad("teacher_lag", "delays a teacher's view of the closing speed: it needs a teacher")
         if self.teacher_steps < 1:
             raise bad("teacher_steps", "must be >= 1")
         if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
 from agent_client.actions import EMERGENCY_LEVEL, make_action_type
-from agent_client.controllers.acc import AccController
+from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.errors import InputFileError
 from agent_client.rewards import CONTROL_PERIOD, ECO_TIME_GAP
 from agent_client.rl.checkpoint import (
@@ -196,13 +196,21 @@ LAWS_55 = {"acc-55-gentle": TEACHER_55_GENTLE, "acc-55-eco": TEACHER_55_ECO, "ac
 ECO_LAWS = {"eco": TEACHER_ECO_GAINS, "eco-mid": TEACHER_ECO_MID_GAINS, "eco-firm": TEACHER_ECO_FIRM_GAINS}
 
 
-def make_teacher(name: str) -> AccController | None:
+def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | None:
     """The privileged teacher of a DAgger run (:data:`~agent_client.rl.config.TEACHERS`), or None.
 
     A "-margin" name is its law stopping 3 m further back (:data:`TEACHER_MARGIN_GAPS`).
+    ``lag`` > 0 [s]: the law's following term sees the closing speed that late
+    (:class:`~agent_client.controllers.acc.LateClosing`, ``Config.teacher_lag``).
     """
     if name == "none":
         return None
+    law = _teacher_law(name)
+    return LateClosing(law, lag, CONTROL_PERIOD) if lag > 0.0 else law
+
+
+def _teacher_law(name: str) -> AccController:
+    """The ACC law a teacher name stands for."""
     law = name.removesuffix("-margin")
     gaps = dict(zip(("d_safe", "d_min"), TEACHER_MARGIN_GAPS, strict=True)) if law != name else {}
     if law == "acc-55":  # the gains that hold 55 m on the EV test windows (docs/training.md)
@@ -270,7 +278,7 @@ class Learner:
         self.acting_policy = Policy.of(self.acting, cfg)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
-        self.teacher = make_teacher(cfg.teacher)
+        self.teacher = make_teacher(cfg.teacher, cfg.teacher_lag)
         self.label_weights = label_weights(cfg).to(self.device) if cfg.brake_weight != 1.0 else None
         self.updates = 0
         self.best_score = math.inf

@@ -143,6 +143,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
                 options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
             obs, info = env.reset(options=options)
+            if learner.teacher is not None:
+                learner.teacher.reset()  # a lagged teacher's view starts over with the episode
             for frame in info.get("preroll", ()):
                 memory.warm(frame)
             memory.start(obs, info["gap"])  # the gap: the auxiliary head's target, kept apart from obs

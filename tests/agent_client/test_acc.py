@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import pytest
 
-from agent_client.controllers.acc import AccController, force_of_accel
+from agent_client.controllers.acc import AccController, LateClosing, force_of_accel
 from agent_client.drive import drive_episode
 from agent_client.launcher import local_server
 from agent_client.session import Session
@@ -28,6 +28,32 @@ def test_eq_1_to_3_while_following():
     a_ref = 0.23 * (60.0 - 1.8 * 30.0) + 0.07 * 1.0  # eq. 1 with d_ref = v t_gap (eq. 2)
     assert acc(obs) == pytest.approx(a_ref / 3.5)
     assert acc.reference_gap(1.0) == 5.0  # d_safe at low speed (eq. 3)
+
+
+def test_late_closing_follows_the_closing_speed_through_a_first_order_lag():
+    law = AccController(fixed_gap=55.0, beta=0.3, gamma=1.5, decel_cap=3.0)
+    late = LateClosing(law, lag=0.5, dt=0.1)
+    obs = {"gap": 56.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 40.0}
+    assert late(obs) == law(obs)  # the first call of an episode sees the closing speed as it is
+    faster = {**obs, "v_lead": 31.0}  # the lead speeds up by 1 m/s: closing 0 -> -1
+    seen = 0.0 + 0.2 * (-1.0 - 0.0)  # dt / lag of the step
+    assert late(faster) == pytest.approx((0.3 * 1.0 + 1.5 * -seen) / 3.5)
+    seen += 0.2 * (-1.0 - seen)
+    assert late(faster) == pytest.approx((0.3 * 1.0 + 1.5 * -seen) / 3.5)
+    assert late(faster) < law(faster)  # still answering less than the whole change
+    late.reset()
+    assert late(faster) == law(faster)  # a new episode sees it as it is again
+    with pytest.raises(ValueError, match="lag"):
+        LateClosing(law, lag=0.0, dt=0.1)
+
+
+def test_late_closing_brakes_for_a_standing_car_on_the_true_speeds():
+    law = AccController(fixed_gap=55.0, beta=0.3, gamma=1.5, decel_cap=3.0)
+    late = LateClosing(law, lag=0.5, dt=0.1)
+    late({"gap": 60.0, "v_host": 20.0, "v_lead": 20.0, "a_lead": 0.0})  # following, closing 0
+    stopped = {"gap": 40.0, "v_host": 20.0, "v_lead": 0.0, "a_lead": 0.0}  # then a standing car 40 m ahead
+    assert late(stopped) == law(stopped) == force_of_accel(-(20.0**2) / (2 * (40.0 - law.d_safe)))
+    assert law(stopped, seen_closing=1.0) == law(stopped)  # the limit binds, whatever the following term sees
 
 
 def test_collision_avoidance_limit_engages_only_when_closing_fast():

@@ -77,6 +77,10 @@ def test_config_checks_the_teacher():
     with pytest.raises(ConfigError, match="servers=1") as e:
         Config(teacher="acc", servers=2)
     assert e.value.field == "teacher"
+    for bad in ({"teacher": "acc", "teacher_lag": -0.1}, {"teacher": "acc", "teacher_lag": float("nan")}, {"teacher_lag": 0.5}):
+        with pytest.raises(ConfigError) as e:
+            Config(**bad)
+        assert e.value.field == "teacher_lag"
     result = CliRunner().invoke(main, ["train", "--reward", "eco", "--steps", "10", "--teacher", "hdm", "--out", "unused"])
     assert result.exit_code == 2 and "--teacher" in result.output
 
@@ -135,6 +139,31 @@ def test_the_brake_weight_tilts_a_torn_label_toward_the_full_brake(tmp_path):
     with pytest.raises(ConfigError, match="needs a teacher") as e:
         Config(brake_weight=4.0)  # no teacher: nothing to weight
     assert e.value.field == "brake_weight"
+
+
+def test_a_lagged_teachers_view_starts_over_with_each_episode(tmp_path, monkeypatch):
+    import agent_client.rl.learner as learner_module
+    from agent_client.controllers.acc import LateClosing
+
+    firsts: list[tuple[float, float]] = []  # (the closing speed as seen, as it is) at each episode's first label
+
+    class Recorded(LateClosing):
+        def __call__(self, obs):
+            fresh = self._seen is None
+            u = super().__call__(obs)
+            if fresh:
+                firsts.append((self._seen, obs["v_host"] - obs["v_lead"]))
+            return u
+
+    monkeypatch.setattr(learner_module, "LateClosing", Recorded)
+    cfg = Config(
+        reward="eco", action="ramp", teacher="acc-55-calm", teacher_lag=0.5, teacher_steps=60, train_trajectories=("random", "catch-up"),
+        total_steps=90, learning_starts=30, train_every=4, batch_size=8, buffer_size=400, episode_seconds=3.0, checkpoint_every=10**6,
+        eval_every=0, eval_trajectories=("stopped:1",), log_every=20,
+    )  # fmt: skip
+    summary = train(cfg, tmp_path / "run", progress=False)
+    assert len(firsts) == summary["episodes"] == 3  # one fresh view per episode
+    assert all(seen == closing for seen, closing in firsts)
 
 
 def test_a_teacher_run_resumes_exactly_and_its_student_drives(tmp_path):
@@ -219,6 +248,15 @@ def test_the_calm_55_m_teachers_answer_the_gap_and_the_leads_speed_more_gently_w
     assert accel_of_force(calmer(far)) == pytest.approx(accel_of_force(calm(far)) * 0.25 / 0.3)  # beta 0.25 against 0.3
     assert accel_of_force(calm(far)) == pytest.approx(accel_of_force(gentle(far)) * 0.3 / 0.4)
     assert make_teacher("acc-55-calm-margin").d_safe == make_teacher("acc-55-gentle-margin").d_safe == 8.0  # stops as far back
+
+
+def test_a_lagged_teacher_is_its_law_seeing_the_closing_speed_late():
+    from agent_client.controllers.acc import LateClosing
+    from agent_client.rl.learner import make_teacher
+
+    late = make_teacher("acc-55-calm-margin", lag=0.5)
+    assert isinstance(late, LateClosing) and late.law == make_teacher("acc-55-calm-margin") and late.lag == 0.5
+    assert make_teacher("acc-55-calm", lag=0.0) == make_teacher("acc-55-calm")
 
 
 def test_the_firm_eco_teacher_opens_a_short_gap_faster_on_the_same_desired_gap():
