@@ -19,6 +19,10 @@ held over ``(t[k-1], t[k]]``:
 
 Sign changes count an acceleration that swings from above ``+deadband`` to below
 ``-deadband`` or back (a hysteresis), so noise around zero is not counted.
+
+Unprompted hard brakes count a deceleration past ISO's 3.5 m/s² that nothing ahead asked
+for in the second before: a phantom brake (a learned policy braking at a shadow in the next
+lane, docs/training.md), which a 2-s window test can miss when the brake is released fast.
 """
 
 from __future__ import annotations
@@ -31,6 +35,13 @@ ISO_JERK_WINDOW_S = 1.0  # [s] ISO 15622: mean jerk over any 1 s ...
 ISO_JERK_LIMIT_MPS3 = 2.5  # [m/s^3] ... at most this
 ACCEL_DEADBAND_MPS2 = 0.1  # [m/s^2] a sign change must cross from > +this to < -this
 WINDOW_SLACK_S = 1e-6  # [s] float slack on "the window fits": logged t is k * 0.1 in floats
+# A hard brake answers a threat if, within PROMPT_WINDOW_S before its onset, the time to
+# collision was under PROMPT_TTC_S (the ACC's ttc_engage), the time headway under
+# PROMPT_HEADWAY_S (a car cut in close ahead), or the lead braked at PROMPT_LEAD_DECEL_MPS2 or more.
+PROMPT_WINDOW_S = 1.0  # [s] a perception delay's worth: a camera policy reacts late
+PROMPT_TTC_S = 6.0  # [s]
+PROMPT_HEADWAY_S = 1.0  # [s]
+PROMPT_LEAD_DECEL_MPS2 = 2.0  # [m/s^2]
 
 __all__ = [
     "ACCEL_DEADBAND_MPS2",
@@ -41,6 +52,7 @@ __all__ = [
     "decel_window_share",
     "jerk_window_share",
     "sign_changes_per_min",
+    "unprompted_hard_brakes",
     "window_starts",
 ]
 
@@ -119,3 +131,41 @@ def sign_changes_per_min(
     outside = sign[sign != 0]  # the band keeps the last sign: drop its rows
     changes = int(np.count_nonzero(np.diff(outside)))
     return changes / ((t[-1] - t[0]) / 60.0)
+
+
+def unprompted_hard_brakes(
+    t: np.ndarray,
+    accel: np.ndarray,
+    gap: np.ndarray,
+    v_host: np.ndarray,
+    v_lead: np.ndarray,
+    limit_mps2: float = ISO_DECEL_LIMIT_MPS2,
+) -> int:
+    """Hard brakes that nothing ahead asked for.
+
+    An onset is a row whose acceleration is below ``-limit_mps2`` after a row that is not.
+    It is prompted if at any row from :data:`PROMPT_WINDOW_S` before it up to it the time to
+    collision ``gap / (v_host - v_lead)`` was under :data:`PROMPT_TTC_S` (closing in), the
+    time headway ``gap / v_host`` under :data:`PROMPT_HEADWAY_S`, or the lead decelerated
+    (from one row to the next) by :data:`PROMPT_LEAD_DECEL_MPS2` or more.
+
+    Args:
+        t: time [s], strictly increasing.
+        accel: the host's acceleration [m/s^2] at each row.
+        gap: the gap [m]; v_host, v_lead: speeds [m/s].
+        limit_mps2: the deceleration that counts as hard [m/s^2], > 0.
+
+    Returns:
+        The number of unprompted onsets.
+    """
+    if t.size < 2:
+        return 0
+    closing = v_host - v_lead
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ttc_short = (closing > 0.0) & (np.maximum(gap, 0.0) < PROMPT_TTC_S * closing)
+        headway_short = np.maximum(gap, 0.0) < PROMPT_HEADWAY_S * v_host
+    lead_decel = np.concatenate([[0.0], -np.diff(v_lead) / np.diff(t)])
+    threat = ttc_short | headway_short | (lead_decel >= PROMPT_LEAD_DECEL_MPS2)
+    hard = accel < -limit_mps2
+    onsets = np.flatnonzero(hard[1:] & ~hard[:-1]) + 1
+    return sum(1 for k in onsets if not threat[(t >= t[k] - PROMPT_WINDOW_S - WINDOW_SLACK_S) & (t <= t[k])].any())

@@ -161,7 +161,7 @@ def _comfort(log: RunLog, settle_s: float) -> Metrics:
     t, accel, force = log.t[keep], log.accel[keep], log.force[keep]
     out: Metrics = {"settle_s": settle_s}
     keys = ("accel_rms_mps2", "jerk_rms_mps3", "jerk_max_mps3", "force_rms",
-            "iso_decel_window_share", "iso_jerk_window_share", "accel_sign_changes_per_min")  # fmt: skip
+            "iso_decel_window_share", "iso_jerk_window_share", "accel_sign_changes_per_min", "unprompted_hard_brakes")  # fmt: skip
     if t.size < 2:
         return out | dict.fromkeys(keys)
     w = _weights(t)
@@ -174,6 +174,7 @@ def _comfort(log: RunLog, settle_s: float) -> Metrics:
         "iso_decel_window_share": comfort.decel_window_share(t, accel),
         "iso_jerk_window_share": comfort.jerk_window_share(t, accel),
         "accel_sign_changes_per_min": comfort.sign_changes_per_min(t, accel),
+        "unprompted_hard_brakes": comfort.unprompted_hard_brakes(t, accel, log.gap[keep], log.v_host[keep], log.v_lead[keep]),
     }
 
 
