@@ -11,6 +11,7 @@ from energy.comfort import (
     decel_window_share,
     jerk_window_share,
     sign_changes_per_min,
+    unprompted_hard_brakes,
     window_starts,
 )
 
@@ -97,3 +98,36 @@ def test_sign_changes_square_wave() -> None:
 def test_sign_change_deadband(a: list[float], changes: int) -> None:
     t = np.arange(len(a)) * 1.0  # changes per minute = changes * 60 / (n - 1)
     assert sign_changes_per_min(t, np.array(a)) == pytest.approx(changes * 60.0 / (len(a) - 1))
+
+
+def _following(n: int = 100, dt: float = 0.1) -> dict[str, np.ndarray]:
+    """10 s behind a steady lead at 25 m/s, 55 m back: nothing ahead asks for a brake."""
+    t = np.arange(n) * dt
+    return {"t": t, "accel": np.zeros(n), "gap": np.full(n, 55.0), "v_host": np.full(n, 25.0), "v_lead": np.full(n, 25.0)}
+
+
+def test_a_hard_brake_behind_a_steady_lead_is_unprompted() -> None:
+    run = _following()
+    run["accel"][50:54] = -5.5  # a phantom full brake for 0.4 s
+    run["accel"][70] = -4.0  # and a second, one row long
+    assert unprompted_hard_brakes(**run) == 2
+    run["accel"][50:54] = -3.5  # at the limit, not past it
+    assert unprompted_hard_brakes(**run) == 1
+    assert unprompted_hard_brakes(**_following()) == 0
+
+
+@pytest.mark.parametrize("threat", ["ttc", "headway", "lead_brakes"])
+def test_a_hard_brake_that_answers_a_threat_in_the_second_before_is_prompted(threat: str) -> None:
+    run = _following()
+    run["accel"][50:54] = -5.5
+    if threat == "ttc":  # closing at 10 m/s from 55 m: 5.5 s to collision, 0.9 s before the brake
+        run["v_host"][41] = 35.0
+    elif threat == "headway":  # a car cut in 20 m ahead at 25 m/s: 0.8 s headway
+        run["gap"][45:] = 20.0
+    else:  # the lead sheds 0.3 m/s in 0.1 s: 3 m/s^2
+        run["v_lead"][48:] = 24.7
+    assert unprompted_hard_brakes(**run) == 0
+    run = _following()
+    run["accel"][50:54] = -5.5
+    run["v_host"][38] = 35.0  # the same threat 1.2 s before: outside the window
+    assert unprompted_hard_brakes(**run) == 1
