@@ -259,12 +259,6 @@ class Config:
     this share, though another level is the argmax: a student unsure whether a closing car
     needs the full brake brakes fully, since a late full brake costs metres and an early
     one a second of comfort. 1: only where it is the argmax."""
-    decision_brake_gate: float = 1.0
-    """(decision mean, brake share below 1) the full brake's share brakes fully only where
-    the mean's target (the softmax-weighted mean of the other levels) is at most this force:
-    where the rest of the softmax asks to accelerate or hold, a share of the full brake is a
-    doubt, not a threat (the shipped ev-eco fired it so behind steady leads, at a shadow in
-    the next lane). 1: wherever the share reaches it, as every policy before 2026-11-27."""
     decision_deadband: float = 0.0
     """(decision mean) where the mean's target lies within this much force of the held one,
     the held force stays (a brake of FIRM_BRAKE or more is never held back). An ablation:
@@ -345,10 +339,6 @@ class Config:
             raise bad("decision_smoothing", f"must be in (0, 1], got {self.decision_smoothing}")
         if self.decision_smoothing < 1.0 and self.decision != "mean":
             raise bad("decision_smoothing", "it lags the mean's target: it needs decision 'mean'")
-        if not -1.0 <= self.decision_brake_gate <= 1.0:
-            raise bad("decision_brake_gate", f"is a force, in [-1, 1]; got {self.decision_brake_gate}")
-        if self.decision_brake_gate < 1.0 and self.decision_brake_share >= 1.0:
-            raise bad("decision_brake_gate", "gates the full brake's share: it needs a decision_brake_share below 1")
         if self.decision_brake_share < 1.0 and self.decision != "mean":
             raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:

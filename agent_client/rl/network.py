@@ -267,8 +267,7 @@ class Policy:
     asks for the force between them instead of flipping from one to the other. Where the
     full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
     :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
-    full brake at least ``brake_share``, it acts at once too, if the target is at most
-    ``brake_gate`` (the rest of the softmax also asks to brake). With a ``deadband``, a target
+    full brake at least ``brake_share``, it acts at once too. With a ``deadband``, a target
     within that much force of the held one (the last force, the first of the observed
     controls) keeps the held force; with a ``smoothing`` below 1, the target is that share
     of the way from the held force; neither where it brakes at least :data:`FIRM_BRAKE`.
@@ -279,20 +278,19 @@ class Policy:
         levels: the action type's target levels (the mean decision).
         temperature: the softmax's temperature (the mean decision).
         brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
-        brake_gate: the share brakes fully only where the target is at most this force (1: wherever).
         deadband: force within which the held force stays (the mean decision; 0: off).
         smoothing: the share of the way to the target asked each step (the mean decision; 1: off).
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
-                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0, brake_gate: float = 1.0):
+                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
         if decision == "mean" and len(levels) != n_out:
             raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
-        self.deadband, self.smoothing, self.brake_gate = float(deadband), float(smoothing), float(brake_gate)
+        self.deadband, self.smoothing = float(deadband), float(smoothing)
         keep = torch.ones(len(levels), dtype=torch.bool)
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
@@ -305,7 +303,7 @@ class Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
         return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
-                   cfg.decision_deadband, cfg.decision_smoothing, cfg.decision_brake_gate)
+                   cfg.decision_deadband, cfg.decision_smoothing)
 
     def __call__(self, obs: dict[str, Any]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
@@ -325,11 +323,10 @@ class Policy:
         action = int(out.argmax().item())
         if action == EMERGENCY_LEVEL:
             return Decision(action)
+        if self.brake_share < 1.0 and float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share:
+            return Decision(EMERGENCY_LEVEL)
         p = torch.softmax(out[self._keep] / self.temperature, dim=0)
         target = float(p @ self._levels)
-        if (self.brake_share < 1.0 and float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share
-                and (self.brake_gate >= 1.0 or target <= self.brake_gate)):
-            return Decision(EMERGENCY_LEVEL)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder
             target = min(target, self._all_levels[action])
         if self.deadband > 0.0 or self.smoothing < 1.0:

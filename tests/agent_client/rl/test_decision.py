@@ -92,30 +92,6 @@ def test_the_full_brake_acts_at_once_where_its_softmax_share_reaches_the_brake_s
         Config(**STUDENT, decision_brake_share=0.2)  # the argmax has no softmax to read
 
 
-def test_the_brake_gate_lets_the_share_brake_only_where_the_rest_of_the_softmax_brakes():
-    rng = np.random.default_rng(5)
-    levels = np.array(FINE_LEVELS)
-    accelerate = int(np.argmax(levels))  # the most force the student can ask for
-    logits = [-10.0] * len(FINE_LEVELS)
-    logits[accelerate], logits[EMERGENCY_LEVEL] = 3.0, 1.5  # "accelerate", with a doubt of the full brake (a third)
-    q = _fixed_outputs(logits)
-    ungated = Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=0.05)(_obs(rng))
-    assert ungated == Decision(EMERGENCY_LEVEL)  # the share alone fires it (as shipped before the gate)
-    gated = Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=0.05, brake_gate=0.0)(_obs(rng))
-    assert gated.action == accelerate and gated.target is not None and gated.target > 0.0  # a ramp toward the mean
-    logits[accelerate], logits[int(np.argmin(np.abs(levels + 0.2)))] = -10.0, 3.0  # now the rest of the softmax brakes gently
-    q = _fixed_outputs(logits)
-    braking = Policy(q, "mean", FINE_LEVELS, 2.0)(_obs(rng))
-    assert braking.target is not None and braking.target <= 0.0
-    assert Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=0.05, brake_gate=0.0)(_obs(rng)) == Decision(EMERGENCY_LEVEL)
-    assert Policy(q, "mean", FINE_LEVELS, 2.0, brake_share=0.05, brake_gate=1.0)(_obs(rng)) == Decision(EMERGENCY_LEVEL)
-    for bad, field in (({"decision_brake_share": 0.1, "decision_brake_gate": 1.5}, "decision_brake_gate"),
-                       ({"decision_brake_gate": 0.0}, "decision_brake_gate")):  # fmt: skip
-        with pytest.raises(ConfigError) as e:
-            Config(**STUDENT, decision="mean", **bad)
-        assert e.value.field == field
-
-
 def test_where_the_argmax_brakes_firmly_the_mean_brakes_no_softer():
     rng = np.random.default_rng(3)
     firm = next(a for a, u in enumerate(FINE_LEVELS) if a != EMERGENCY_LEVEL and u <= -FIRM_BRAKE)
@@ -209,10 +185,10 @@ def test_a_policy_copied_with_another_decision_keeps_its_weights_and_the_origina
     src, dst = tmp_path / "student.pt", tmp_path / "mean.pt"
     save_policy(q, cfg, src)
     before = src.read_bytes()
-    assert with_decision(src, dst, "mean", 3.0, brake_share=0.2, brake_gate=0.0).decision_temperature == 3.0
+    assert with_decision(src, dst, "mean", 3.0, brake_share=0.2).decision_temperature == 3.0
     assert src.read_bytes() == before
     copy, copy_cfg = load_policy(dst)
-    assert (copy_cfg.decision, copy_cfg.decision_temperature, copy_cfg.decision_brake_share, copy_cfg.decision_brake_gate) == ("mean", 3.0, 0.2, 0.0)
+    assert (copy_cfg.decision, copy_cfg.decision_temperature, copy_cfg.decision_brake_share) == ("mean", 3.0, 0.2)
     for key, value in q.state_dict().items():
         torch.testing.assert_close(copy.state_dict()[key], value, rtol=0, atol=0)
     with pytest.raises(InputFileError, match="exists"):
