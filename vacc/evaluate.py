@@ -89,6 +89,8 @@ COMFORT_ROWS = [
     Row(f"ISO decel: 2-s windows over {ISO_DECEL_LIMIT_MPS2:g} m/s^2", "iso_decel_window_share",
         "%", 1, scale=100.0),
     Row("Accel sign changes", "accel_sign_changes_per_min", "1/min", 1),
+    Row(f"Unprompted hard brakes (past {ISO_DECEL_LIMIT_MPS2:g} m/s^2, no threat ahead)", "unprompted_hard_brakes", "", 0, "sum",
+        follower_only=True),
 ]
 COMBINE: dict[str, Callable[[list[Any]], Any]] = {
     "mean": lambda v: float(np.mean(v)), "sum": lambda v: int(sum(v)),

@@ -150,6 +150,8 @@ def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
     assert rows[("mean", "Min gap")]["Lead"] == "—"
     md = (tmp_path / "table.md").read_text()
     assert "leave out the first 15 s" in md and "| Accel sign changes (1/min) |" in md
+    assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "0"
+    assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["Lead"] == "—"
     whole = build_tables(tmp_path, "ice", ["acc"], {"acc": "ACC"}, "corolla", settle=0.0)["acc"]
     # the same jerk, spread over 300 intervals instead of the last 150
     assert whole["jerk_rms_mps3"] == pytest.approx(acc["jerk_rms_mps3"] * np.sqrt(150 / 300))
