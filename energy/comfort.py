@@ -168,4 +168,6 @@ def unprompted_hard_brakes(
     threat = ttc_short | headway_short | (lead_decel >= PROMPT_LEAD_DECEL_MPS2)
     hard = accel < -limit_mps2
     onsets = np.flatnonzero(hard[1:] & ~hard[:-1]) + 1
-    return sum(1 for k in onsets if not threat[(t >= t[k] - PROMPT_WINDOW_S - WINDOW_SLACK_S) & (t <= t[k])].any())
+    first = np.searchsorted(t, t[onsets] - PROMPT_WINDOW_S - WINDOW_SLACK_S)  # each onset's look-back starts here
+    threats = np.concatenate([[0], np.cumsum(threat)])  # threat rows before each row
+    return int(np.count_nonzero(threats[onsets + 1] == threats[first]))

@@ -116,10 +116,6 @@ class LateClosing:
         if not self.lag > 0.0 or not self.dt > 0.0:
             raise ValueError(f"LateClosing: lag and dt must be > 0 s, got lag {self.lag!r}, dt {self.dt!r}")
 
-    @property
-    def name(self) -> str:
-        return f"{self.law.name}-late"
-
     def reset(self) -> None:
         """A new episode: the next call sees its closing speed as it is."""
         self._seen = None

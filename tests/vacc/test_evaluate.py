@@ -115,14 +115,15 @@ def test_eco_model_joins_the_default_methods_with_a_pareto_figure(tmp_path):
         assert (out / f"fig_pareto.{ext}").stat().st_size > 1000
 
 
-def _write_log(path, gap: float, v_max: float, flips: bool) -> None:
+def _write_log(path, gap: float, v_max: float, flips: bool, phantom: bool = False) -> None:
     """A 30 s log at 0.1 s: steady at 20 m/s with one row at v_max and gap; ±1.5 m/s²
-    flips every second over 20-25 s when flips."""
+    flips every second over 20-25 s when flips; one row braking at 4 m/s² at 26 s, 55 m
+    behind the steady lead, when phantom."""
     with path.open("w") as f:
         f.write("t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n")
         for k in range(301):
             t = k / 10
-            accel = (1.5 if k // 10 % 2 == 0 else -1.5) if flips and 200 <= k < 250 else 0.0
+            accel = (1.5 if k // 10 % 2 == 0 else -1.5) if flips and 200 <= k < 250 else -4.0 if phantom and k == 260 else 0.0
             v, g = (v_max, gap) if k == 100 else (20.0, 55.0)
             f.write(f"{t},{k},{v},20.0,{g},{accel},0.0,0,0.0\n")
 
@@ -134,7 +135,7 @@ def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
     logs = tmp_path / "logs"
     logs.mkdir()
     for i in range(1, 5):
-        _write_log(logs / f"acc-test-{i}.csv", gap=40.0 - i, v_max=20.0 + i, flips=i == 2)
+        _write_log(logs / f"acc-test-{i}.csv", gap=40.0 - i, v_max=20.0 + i, flips=i == 2, phantom=i >= 3)
         _write_log(logs / f"lead-test-{i}.csv", gap=55.0, v_max=25.0, flips=False)
     res = build_tables(tmp_path, "ice", ["lead", "acc"], {"lead": "Lead", "acc": "ACC"}, "corolla")
     acc = res["acc"]
@@ -150,7 +151,8 @@ def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
     assert rows[("mean", "Min gap")]["Lead"] == "—"
     md = (tmp_path / "table.md").read_text()
     assert "leave out the first 15 s" in md and "| Accel sign changes (1/min) |" in md
-    assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "0"
+    assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "2"  # summed: test-3 and test-4
+    assert rows[("test-3", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "1"
     assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["Lead"] == "—"
     whole = build_tables(tmp_path, "ice", ["acc"], {"acc": "ACC"}, "corolla", settle=0.0)["acc"]
     # the same jerk, spread over 300 intervals instead of the last 150
