@@ -36,6 +36,7 @@ from vacc.paths import MODELS_DEFAULT, models_dir
 
 TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
 METHODS = ("lead", "ddqn-gap", "ddqn-force", "ddqn-eco", "acc", "human")
+SUITE_METHODS = ("acc", "ddqn-gap", "ddqn-force", "ddqn-eco")  # what --suite safety drives
 LABELS = {
     "lead": "Lead vehicle",
     "ddqn-gap": "Gap-based DDQN",
@@ -420,6 +421,32 @@ def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
         raise click.BadParameter(str(exc), param_hint="--seeds") from None
 
 
+def _method_list(methods: str) -> list[str]:
+    """--methods as a list.
+
+    Raises:
+        click.BadParameter: an unknown method.
+    """
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    unknown = sorted(set(chosen) - set(METHODS))
+    if unknown:
+        raise click.BadParameter(f"unknown methods {unknown}; choose from {list(METHODS)}", param_hint="--methods")
+    return chosen
+
+
+def _suite_methods(methods: str) -> list[str]:
+    """--methods for the safety suite, which drives the ACC and the DDQN models only.
+
+    Raises:
+        click.BadParameter: an unknown method, one the suite does not drive, or none at all.
+    """
+    chosen = _method_list(methods)
+    other = sorted(set(chosen) - set(SUITE_METHODS))
+    if other or not chosen:
+        raise click.BadParameter(f"the safety suite drives {', '.join(SUITE_METHODS)} only, got {methods!r}", param_hint="--methods")
+    return chosen
+
+
 def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
     """The safety suite's lead scenarios from --lead-scenarios (default: all of them).
 
@@ -440,7 +467,7 @@ def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
-@click.option("--methods", default=None, help="Comma-separated subset of: " + ", ".join(METHODS) + f". Default: all; {', '.join(OPTIONAL)} only where its model is in --models.")
+@click.option("--methods", default=None, help="Comma-separated subset of: " + ", ".join(METHODS) + f". Default: all; {', '.join(OPTIONAL)} only where its model is in --models. With --suite safety: acc and the models of the chosen kinds (ev-eco.pt and ev-eco-*.pt are ddqn-eco); default: the ACC and every model.")
 @click.option("--models", default=lambda: str(models_dir()), show_default=MODELS_DEFAULT, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
 @click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")
 @click.option("--vehicle", default=None, type=click.Choice(["corolla", "average", "leaf"]), help="Energy model; default corolla (ICE) or leaf (EV).")
@@ -467,15 +494,19 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
         given = click.get_current_context().get_parameter_source("scenario") == click.core.ParameterSource.COMMANDLINE
         vehicles = (scenario,) if given else SCENARIOS
         found = {p.stem: str(p) for p in sorted(Path(models).glob("*.pt")) if p.stem.split("-")[0] in vehicles}
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads))
+        with_acc = True
+        if methods is not None:  # the ACC and the models of the chosen kinds only (ev-eco, ev-eco-b.pt: ddqn-eco)
+            chosen = _suite_methods(methods)
+            with_acc = "acc" in chosen
+            found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
+            if not with_acc and not found:
+                raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:
         methods = ",".join(m for m in METHODS if m not in OPTIONAL or (Path(models) / f"{scenario}-{m.removeprefix('ddqn-')}.pt").is_file())
-    chosen = [m.strip() for m in methods.split(",") if m.strip()]
-    unknown = sorted(set(chosen) - set(METHODS))
-    if unknown:
-        raise click.BadParameter(f"unknown methods {unknown}; choose from {list(METHODS)}", param_hint="--methods")
+    chosen = _method_list(methods)
     files = _parse_human_files(human_files)
     multi = len(seed_list) > 1
     if files and multi:

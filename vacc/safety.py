@@ -53,6 +53,7 @@ def safety_jobs(
     scenarios: Iterable[str] = tuple(LEAD_SCENARIOS),
     cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS,
+    acc: bool = True,
 ) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
@@ -64,8 +65,9 @@ def safety_jobs(
         scenarios: lead scenario names.
         cold_start: engage the models at frame 0, without the camera's pre-roll.
         vehicles: whose ACC drives (the models drive their own vehicle).
+        acc: whether the ACC drives at all (``--methods`` without acc: the models alone).
     """
-    drivers = [("acc", vehicle, None) for vehicle in vehicles] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
+    drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
                  str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start)  # fmt: skip
@@ -116,7 +118,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
 
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
-    vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS),
+    vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
@@ -126,7 +128,7 @@ def run_suite(
     from vacc.evaluate import Job, drive_jobs
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles)
+    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)

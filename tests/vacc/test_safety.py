@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from protocol.scenarios import LEAD_SCENARIOS
 from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, score_run
 
+MODELS = Path(__file__).resolve().parents[2] / "models"
 HEADER = "t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n"
 
 
@@ -68,6 +71,24 @@ def test_a_given_scenario_and_lead_scenarios_drive_only_those(tmp_path):
     assert len(list((out / "logs").glob("*.csv"))) == 4
 
 
+def test_methods_choose_the_drivers(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copy(MODELS / "ev-eco.pt", models / "ev-eco-candidate.pt")
+    shutil.copy(MODELS / "ev-gap.pt", models / "ev-gap.pt")
+    out = tmp_path / "safety"
+    result = subprocess.run(
+        [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ev", "--lead-scenarios", "stopped",
+         "--seeds", "0", "--methods", "ddqn-eco", "--models", str(models), "--out", str(out), "--jobs", "1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    table = (out / "safety.md").read_text()
+    assert "| ev-eco-candidate (ev) | stopped | 1/1 |" in table
+    assert "acc" not in table and "ev-gap" not in table
+    assert [p.name for p in (out / "logs").glob("*.csv")] == ["ev-eco-candidate-ev-stopped-0.csv"]
+
+
 @pytest.mark.parametrize(
     ("args", "option"),
     [
@@ -75,6 +96,8 @@ def test_a_given_scenario_and_lead_scenarios_drive_only_those(tmp_path):
         (["--suite", "safety", "--lead-scenarios", "stopped,moose"], "--lead-scenarios"),
         (["--suite", "safety", "--lead-scenarios", ","], "--lead-scenarios"),
         (["--lead-scenarios", "stopped"], "--lead-scenarios"),  # the paper suite drives test-1..4
+        (["--suite", "safety", "--methods", "acc,human"], "--methods"),  # the suite has no human driver
+        (["--suite", "safety", "--methods", "ddqn-eco", "--models", "no-such-models"], "--methods"),
     ],
 )
 def test_bad_options_fail_naming_the_option(tmp_path, args, option):
