@@ -151,12 +151,13 @@ def evaluate_run(
     else:
         out["headway_min_s"] = out["headway_mean_s"] = None
 
-    out |= _comfort(log, settle_s)
+    out |= comfort_metrics(log, settle_s)
     out |= _energy(t, v, vehicle)
     return out
 
 
-def _comfort(log: RunLog, settle_s: float) -> Metrics:
+def comfort_metrics(log: RunLog, settle_s: float = SETTLE_S) -> Metrics:
+    """The comfort figures of :func:`evaluate_run` (rows from ``settle_s`` on)."""
     keep = log.t >= log.t[0] + settle_s - comfort.WINDOW_SLACK_S
     t, accel, force = log.t[keep], log.accel[keep], log.force[keep]
     out: Metrics = {"settle_s": settle_s}

@@ -501,7 +501,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
             found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
             if not with_acc and not found:
                 raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc))
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc, settle=settle))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:

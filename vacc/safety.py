@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
+from energy import SETTLE_S, RunLogError, read_run_log
+from energy.metrics import comfort_metrics
 from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
 
@@ -77,18 +78,23 @@ def safety_jobs(
     ]
 
 
-def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED) -> dict[str, Any]:
-    """Collision, minimum gap [m] and maximum speed [m/s] of one run log, and whether it passes."""
-    with open(log, newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        raise click.ClickException(f"{log}: an empty run log")
-    gap = np.array([float(r["gap"]) for r in rows])
-    speed = np.array([float(r["v_host"]) for r in rows])
-    collision = any(r["collision"] == "1" for r in rows)
-    min_gap, max_speed = float(gap.min()), float(speed.max())
+def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED, settle: float = SETTLE_S) -> dict[str, Any]:
+    """Collision, minimum gap [m] and maximum speed [m/s] of one run log, and whether it
+    passes; and, not part of the verdict, its unprompted hard brakes from ``settle`` [s] on
+    (:func:`energy.comfort.unprompted_hard_brakes`: phantom brakes the minima cannot show).
+
+    Raises:
+        click.ClickException: the log is not a valid run log (the file, the row, the problem).
+    """
+    try:
+        run = read_run_log(log)
+    except RunLogError as e:
+        raise click.ClickException(str(e)) from None
+    collision = bool(run.collision.any())
+    min_gap, max_speed = float(run.gap.min()), float(run.v_host.max())
     ok = not collision and min_gap >= MIN_GAP and max_speed <= set_speed + SPEED_MARGIN
-    return {"collision": collision, "min_gap_m": min_gap, "max_speed_mps": max_speed, "passed": ok}
+    brakes = comfort_metrics(run, settle)["unprompted_hard_brakes"] or 0
+    return {"collision": collision, "min_gap_m": min_gap, "max_speed_mps": max_speed, "passed": ok, "unprompted_hard_brakes": brakes}
 
 
 def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
@@ -103,22 +109,34 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
             "driver": driver, "scenario": scenario, "runs": len(runs), "passed": sum(r["passed"] for r in runs),
             "collisions": sum(r["collision"] for r in runs), "min_gap_m": min(r["min_gap_m"] for r in runs),
             "max_speed_mps": max(r["max_speed_mps"] for r in runs),
+            "unprompted_hard_brakes": sum(r["unprompted_hard_brakes"] for r in runs),
+            "runs_with_unprompted": sum(r["unprompted_hard_brakes"] > 0 for r in runs),
         })  # fmt: skip
     lines = [
         f"Pass: no collision, minimum gap >= {MIN_GAP:g} m, speed <= set speed ({DEFAULT_SET_SPEED:g} m/s) + {SPEED_MARGIN:g} m/s.",
+        "Unprompted hard brakes (after the settling time; not part of the verdict): decelerations past",
+        "3.5 m/s^2 with no threat in the second before (energy.comfort.unprompted_hard_brakes).",
         "",
-        "| driver | scenario | passed | collisions | min gap (m) | max speed (m/s) | verdict |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| driver | scenario | passed | collisions | min gap (m) | max speed (m/s) | unprompted hard brakes | verdict |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
+    totals: dict[str, list[int]] = {}
     for r in rows:
         verdict = "PASS" if r["passed"] == r["runs"] else "FAIL"
-        lines.append(f"| {r['driver']} | {r['scenario']} | {r['passed']}/{r['runs']} | {r['collisions']} | {r['min_gap_m']:.2f} | {r['max_speed_mps']:.2f} | {verdict} |")
+        lines.append(f"| {r['driver']} | {r['scenario']} | {r['passed']}/{r['runs']} | {r['collisions']} | {r['min_gap_m']:.2f} | {r['max_speed_mps']:.2f} "
+                     f"| {r['unprompted_hard_brakes']} | {verdict} |")  # fmt: skip
+        total = totals.setdefault(r["driver"], [0, 0, 0, 0])
+        for i, key in enumerate(("passed", "runs", "unprompted_hard_brakes", "runs_with_unprompted")):
+            total[i] += r[key]
+    lines += ["", "| driver | passed | unprompted hard brakes (runs with any) |", "| --- | --- | --- |"]
+    lines += [f"| {d} | {p}/{n} | {u} ({k}) |" for d, (p, n, u, k) in totals.items()]
     return "\n".join(lines) + "\n", rows
 
 
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
+    settle: float = SETTLE_S,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
@@ -130,7 +148,7 @@ def run_suite(
     (out / "logs").mkdir(parents=True, exist_ok=True)
     work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc)
     drive_jobs(work, jobs, "safety suite")
-    table, rows = safety_table(work, [score_run(j.log) for j in work])
+    table, rows = safety_table(work, [score_run(j.log, settle=settle) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)
     with open(out / "safety.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))

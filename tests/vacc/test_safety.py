@@ -6,19 +6,22 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
+import click
 import pytest
 
 from protocol.scenarios import LEAD_SCENARIOS
-from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, score_run
+from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, safety_table, score_run
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 HEADER = "t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n"
 
 
-def _log(tmp_path, rows):
+def _log(tmp_path, rows, accel=None):
     path = tmp_path / "run.csv"
-    path.write_text(HEADER + "".join(f"{i * 0.1},{i},{v},0,{g},0,0,{c},0\n" for i, (v, g, c) in enumerate(rows)))
+    accel = accel if accel is not None else [0.0] * len(rows)
+    path.write_text(HEADER + "".join(f"{i * 0.1},{i},{v},{v},{g},{a},0,{c},0\n" for i, ((v, g, c), a) in enumerate(zip(rows, accel, strict=True))))
     return path
 
 
@@ -37,9 +40,30 @@ def test_a_run_passes_only_without_collision_close_gap_or_overspeed(tmp_path):
     assert hit["collision"] and not hit["passed"]
     close = score_run(_log(tmp_path, [(20.0, 30.0, 0), (5.0, MIN_GAP - 0.01, 0)]))
     assert not close["collision"] and close["min_gap_m"] == pytest.approx(MIN_GAP - 0.01) and not close["passed"]
-    fast = score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN + 0.01, 60.0, 0)]))
+    fast = score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN + 0.01, 60.0, 0)] * 2))
     assert fast["max_speed_mps"] > 34.0 and not fast["passed"]
-    assert score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN, 60.0, 0)]))["passed"]
+    assert score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN, 60.0, 0)] * 2))["passed"]
+
+
+def test_unprompted_hard_brakes_are_counted_after_settling_but_do_not_fail_a_run(tmp_path):
+    # 30 s behind a lead at the same speed, 55 m ahead; a full brake at 5 s and one at 20 s
+    accel = [-6.0 if i in (50, 51, 200, 201) else 0.0 for i in range(300)]
+    log = _log(tmp_path, [(25.0, 55.0, 0)] * 300, accel)
+    score = score_run(log)  # the default settling time, 15 s, leaves the first out
+    assert score["passed"] and score["unprompted_hard_brakes"] == 1
+    assert score_run(log, settle=0.0)["unprompted_hard_brakes"] == 2
+    job = SimpleNamespace(method="acc", checkpoint=None, scenario="ev", trajectory="constant")
+    table, rows = safety_table([job, job], [score, score_run(_log(tmp_path, [(25.0, 55.0, 0)] * 300))])
+    assert rows[0]["unprompted_hard_brakes"] == 1 and rows[0]["runs_with_unprompted"] == 1
+    assert "| acc (ev) | constant | 2/2 | 0 | 55.00 | 25.00 | 1 | PASS |" in table
+    assert "| acc (ev) | 2/2 | 1 (1) |" in table
+
+
+def test_a_bad_run_log_fails_naming_the_file(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(HEADER + "0,0,20,20,30,0,0,0,0\n")
+    with pytest.raises(click.ClickException, match="run.csv"):
+        score_run(path)
 
 
 def test_the_acc_passes_every_scenario(tmp_path):
