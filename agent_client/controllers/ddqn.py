@@ -63,6 +63,7 @@ class DDQNController:
         self.stacker.reset()
         self.frames.reset()
         self.actions.reset()
+        self.policy.reset()
 
     @property
     def history_steps(self) -> int:

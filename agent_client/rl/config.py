@@ -259,6 +259,12 @@ class Config:
     this share, though another level is the argmax: a student unsure whether a closing car
     needs the full brake brakes fully, since a late full brake costs metres and an early
     one a second of comfort. 1: only where it is the argmax."""
+    decision_brake_confirm: int = 1
+    """(decision mean) decisions in a row whose softmax must give the full brake at least
+    ``decision_brake_share`` before the share alone brakes fully (the argmax's full brake
+    still acts at once). A camera student's phantom brake is often one decision long, but
+    the ramp releases it at RAMP_RATE a step, so it costs a second of full braking; a second
+    decision in a row confirms a real threat 0.1 s later. 1: at once."""
     decision_deadband: float = 0.0
     """(decision mean) where the mean's target lies within this much force of the held one,
     the held force stays (a brake of FIRM_BRAKE or more is never held back). An ablation:
@@ -339,6 +345,10 @@ class Config:
             raise bad("decision_smoothing", f"must be in (0, 1], got {self.decision_smoothing}")
         if self.decision_smoothing < 1.0 and self.decision != "mean":
             raise bad("decision_smoothing", "it lags the mean's target: it needs decision 'mean'")
+        if self.decision_brake_confirm < 1:
+            raise bad("decision_brake_confirm", f"must be >= 1, got {self.decision_brake_confirm}")
+        if self.decision_brake_confirm > 1 and self.decision_brake_share >= 1.0:
+            raise bad("decision_brake_confirm", "confirms the brake share's full brake: it needs decision_brake_share below 1")
         if self.decision_brake_share < 1.0 and self.decision != "mean":
             raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:

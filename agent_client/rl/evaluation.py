@@ -80,6 +80,7 @@ def evaluate(policy: Any, envs: Any, trajectories: tuple[str, ...]) -> list[dict
 
 def _episode(policy: Any, env: Any, trajectory: str) -> dict[str, Any]:
     """One greedy episode of ``trajectory`` in ``env``."""
+    policy = policy.fresh()  # its own decision state: episodes may run on several threads
     server_trajectory, seed = eval_episode(trajectory)
     obs, info = env.reset(options={"seed": seed, "trajectory": server_trajectory})
     gaps, collision, steps = [info["gap"]], bool(info["collision"]), 0

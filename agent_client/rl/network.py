@@ -7,6 +7,7 @@ compute the same numbers to the last digit.
 
 from __future__ import annotations
 
+import copy as _copy
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -267,7 +268,8 @@ class Policy:
     asks for the force between them instead of flipping from one to the other. Where the
     full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
     :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
-    full brake at least ``brake_share``, it acts at once too. With a ``deadband``, a target
+    full brake at least ``brake_share`` (in ``brake_confirm`` decisions in a row), it acts
+at once too. With a ``deadband``, a target
     within that much force of the held one (the last force, the first of the observed
     controls) keeps the held force; with a ``smoothing`` below 1, the target is that share
     of the way from the held force; neither where it brakes at least :data:`FIRM_BRAKE`.
@@ -278,12 +280,14 @@ class Policy:
         levels: the action type's target levels (the mean decision).
         temperature: the softmax's temperature (the mean decision).
         brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
+        brake_confirm: decisions in a row that must reach ``brake_share`` (1: at once). The
+            count is state: :meth:`reset` it with each episode, or decide with a :meth:`fresh` copy.
         deadband: force within which the held force stays (the mean decision; 0: off).
         smoothing: the share of the way to the target asked each step (the mean decision; 1: off).
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
-                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0):
+                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0, brake_confirm: int = 1):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
@@ -291,6 +295,7 @@ class Policy:
             raise ValueError(f"the mean decision needs one target level per output ({n_out}), got {len(levels)}")
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
         self.deadband, self.smoothing = float(deadband), float(smoothing)
+        self.brake_confirm, self._share_streak = int(brake_confirm), 0  # decisions in a row at the brake share
         keep = torch.ones(len(levels), dtype=torch.bool)
         if len(levels):
             keep[EMERGENCY_LEVEL] = False
@@ -303,7 +308,17 @@ class Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
         return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
-                   cfg.decision_deadband, cfg.decision_smoothing)
+                   cfg.decision_deadband, cfg.decision_smoothing, cfg.decision_brake_confirm)
+
+    def reset(self) -> None:
+        """Start an episode: forget the decisions in a row at the brake share."""
+        self._share_streak = 0
+
+    def fresh(self) -> Policy:
+        """A copy for one episode (the same network and rule, its own state)."""
+        copy = _copy.copy(self)
+        copy.reset()
+        return copy
 
     def __call__(self, obs: dict[str, Any]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
@@ -322,9 +337,13 @@ class Policy:
         out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
         action = int(out.argmax().item())
         if action == EMERGENCY_LEVEL:
+            self._share_streak += 1  # a full brake in progress: a share that follows goes on braking
             return Decision(action)
-        if self.brake_share < 1.0 and float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share:
-            return Decision(EMERGENCY_LEVEL)
+        if self.brake_share < 1.0:
+            at_share = float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share
+            self._share_streak = self._share_streak + 1 if at_share else 0
+            if self._share_streak >= self.brake_confirm:
+                return Decision(EMERGENCY_LEVEL)
         p = torch.softmax(out[self._keep] / self.temperature, dim=0)
         target = float(p @ self._levels)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder

@@ -145,6 +145,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             obs, info = env.reset(options=options)
             if learner.teacher is not None:
                 learner.teacher.reset()  # a lagged teacher's view starts over with the episode
+            learner.acting_policy.reset()
             for frame in info.get("preroll", ()):
                 memory.warm(frame)
             memory.start(obs, info["gap"])  # the gap: the auxiliary head's target, kept apart from obs

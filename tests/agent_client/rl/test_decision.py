@@ -221,3 +221,53 @@ def test_a_mean_decision_run_trains_evaluates_and_drives_smoothly(tmp_path):
     steps = np.abs(np.diff(forces))
     # a ramp (or the full brake at once); off the levels' grid where the mean lies between them
     assert ((steps <= RAMP_RATE + 1e-9) | (forces[1:] == -1.0)).all()
+
+
+def test_a_confirmed_brake_share_brakes_fully_only_in_decisions_in_a_row():
+    rng = np.random.default_rng(5)
+    logits = [0.0] * len(FINE_LEVELS)
+    logits[4], logits[EMERGENCY_LEVEL] = 2.0, 1.0  # the full brake second, at a share of about 0.06 at temperature 2
+    calm = [0.0] * len(FINE_LEVELS)
+    calm[4] = 2.0  # the full brake at a share of about 0.04
+    sure = [0.0] * len(FINE_LEVELS)
+    sure[EMERGENCY_LEVEL] = 3.0
+    unsure, calm, sure = _fixed_outputs(logits), _fixed_outputs(calm), _fixed_outputs(sure)
+    obs = _obs(rng)
+    policy = Policy(unsure, "mean", FINE_LEVELS, 2.0, brake_share=0.05, brake_confirm=2)
+    first = policy(obs)
+    assert first.action == 4 and first.target is not None  # one decision at the share: not yet
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)  # the second in a row: the full brake
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)
+    policy.reset()
+    assert policy(obs).target is not None  # a new episode starts the count over
+    policy.q = calm
+    assert policy(obs).target is not None  # a decision below the share breaks the run
+    policy.q = unsure
+    assert policy(obs).target is not None
+    fresh = policy.fresh()
+    assert policy(obs) == Decision(EMERGENCY_LEVEL) and fresh(obs).target is not None  # a copy has its own count
+    policy.reset()
+    policy.q = sure
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)  # the argmax's full brake acts at once ...
+    policy.q = unsure
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)  # ... and a share after it goes on braking
+    at_once = Policy(unsure, "mean", FINE_LEVELS, 2.0, brake_share=0.05)
+    assert at_once(obs) == Decision(EMERGENCY_LEVEL)
+    with pytest.raises(ConfigError) as e:
+        Config(**STUDENT, decision="mean", decision_brake_share=0.1, decision_brake_confirm=0)
+    assert e.value.field == "decision_brake_confirm"
+    with pytest.raises(ConfigError, match="brake_share below 1"):
+        Config(**STUDENT, decision="mean", decision_brake_confirm=2)
+
+
+def test_decide_records_the_brake_confirmation(tmp_path):
+    cfg = Config(**STUDENT)
+    src, dst = tmp_path / "student.pt", tmp_path / "confirmed.pt"
+    save_policy(QNetwork.of(cfg), cfg, src)
+    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "decide", str(src), str(dst), "--decision", "mean",
+           "--brake-share", "0.1", "--brake-confirm", "2"]  # fmt: skip
+    done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "confirmed in 2" in done.stdout, done.stderr
+    assert load_policy(dst)[1].decision_brake_confirm == 2
+    bad = subprocess.run([*cli[:5], str(tmp_path / "bad.pt"), "--decision", "mean", "--brake-confirm", "2"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "decision_brake_confirm" in bad.stderr and not (tmp_path / "bad.pt").exists()
