@@ -269,8 +269,8 @@ class Policy:
     full brake is the argmax, it acts at once, as ever; where the argmax brakes at least
     :data:`FIRM_BRAKE`, the target brakes no softer than it; and where the softmax gives the
     full brake at least ``brake_share`` (in ``brake_confirm`` decisions in a row), it acts
-    at once too. With a ``deadband``, a target within that much force of the held one (the last force, the first of the observed
-    controls) keeps the held force; with a ``smoothing`` below 1, the target is that share
+    at once too. With a ``deadband``, a target within that much force of the held one (the
+    last force, the first of the observed controls) keeps the held force; with a ``smoothing`` below 1, the target is that share
     of the way from the held force; neither where it brakes at least :data:`FIRM_BRAKE`.
 
     Args:
