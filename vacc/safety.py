@@ -3,7 +3,8 @@
 A run passes when it has no collision, its minimum gap is at least
 :data:`MIN_GAP` and its speed never exceeds the set speed by more than
 :data:`SPEED_MARGIN` (ISO 15622 stopping on a stopped or stopping target, Euro NCAP
-CCRs/CCRm/CCRb shapes; ``docs/scenarios.md``). Each DDQN model drives the scenario it
+CCRs/CCRm/CCRb shapes; ``docs/scenarios.md``). Each row also counts the unprompted hard
+brakes (phantom brakes), beside the verdict. Each DDQN model drives the scenario it
 was trained for (ice-* the ICE car, ev-* the EV); the ACC drives both.
 """
 
@@ -16,7 +17,7 @@ from typing import Any
 
 import click
 
-from energy import SETTLE_S, RunLogError, read_run_log
+from energy import SETTLE_S, RunLogError, comfort, read_run_log
 from energy.metrics import comfort_metrics
 from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
@@ -115,7 +116,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
     lines = [
         f"Pass: no collision, minimum gap >= {MIN_GAP:g} m, speed <= set speed ({DEFAULT_SET_SPEED:g} m/s) + {SPEED_MARGIN:g} m/s.",
         "Unprompted hard brakes (after the settling time; not part of the verdict): decelerations past",
-        "3.5 m/s^2 with no threat in the second before (energy.comfort.unprompted_hard_brakes).",
+        f"{comfort.ISO_DECEL_LIMIT_MPS2:g} m/s^2 with no threat in the {comfort.PROMPT_WINDOW_S:g} s before (energy.comfort.unprompted_hard_brakes).",
         "",
         "| driver | scenario | passed | collisions | min gap (m) | max speed (m/s) | unprompted hard brakes | verdict |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
