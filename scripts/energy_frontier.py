@@ -17,6 +17,10 @@ script checks):
   speed) through a first-order lag of TAU seconds, as a student that reads it from the
   camera does (agent_client.controllers.acc.LateClosing; their collision-avoidance
   limit reads the true speeds);
+* with ``--copy``, lead copies: a follower handed the lead's true acceleration and speed
+  TAU seconds late that copies them, with a weak pull toward 55 m
+  (:class:`LeadCopy`); at TAU = 0 it is the best a causal follower can know, an upper
+  bound on what perception could give a student;
 * preview (EV only; its model is eq. 6): energy.frontier.preview_bound over a grid of gap
   weights, from the ACC's initial speed and gap to its final speed: what a follower that
   knew the lead's whole future could reach.
@@ -34,6 +38,7 @@ import itertools
 import json
 import subprocess
 import sys
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +53,7 @@ from energy.cmem import COROLLA_2022
 from energy.cmem import per_mile as cmem_per_mile
 from energy.ev import eq6_per_mile
 from energy.frontier import preview_bound
-from protocol.constants import DESIRED_GAP
+from protocol.constants import A_MAX, A_MIN, DESIRED_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
 from sim_server.vehicle import accel_of_force, advance_speed
 from vacc.safety import parse_seeds
@@ -58,6 +63,9 @@ GAMMAS = {"ev": (1.2, 2.0, 3.0, 4.0), "ice": (0.3, 0.6, 1.0, 2.0)}
 UNIT = {"ev": "kJ/mi", "ice": "g/mi"}
 TARGET_RMSE = {"ev": 5.1, "ice": 3.4}  # [m] issue #15's gap RMSE bound on each episode
 LAMS = (0.001, 0.003, 0.01, 0.03, 0.1)
+COPY_LAGS = (0.0, 0.5, 1.0)  # [s] how late the lead copies see the lead
+COPY_SPEED_GAINS = (0.5, 1.0, 2.0)  # [1/s]
+COPY_GAP_GAINS = (0.02, 0.05, 0.1)  # [1/s^2]
 DECEL_CAP = TEACHER_55_GENTLE[2]  # [m/s^2] the gentle teachers' braking cap
 
 
@@ -72,6 +80,24 @@ def teacher_law(scenario: str, beta: float, gamma: float) -> AccController:
     if scenario == "ev":
         return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=DECEL_CAP, d_safe=d_safe, d_min=d_min)
     return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=beta, gamma=gamma, d_safe=d_safe, d_min=d_min)
+
+
+class LeadCopy:
+    """a = a_lead(t - lag) + k_v (v_lead(t - lag) - v) + k_g (gap - 55 m), as a force.
+
+    Not a controller a camera student could be taught: it is handed the lead's
+    acceleration. It asks how little a 55 m follower could spend if it knew the lead's
+    present motion, which no law of the grid above is told."""
+
+    def __init__(self, lag: float, k_v: float, k_g: float):
+        self.k_v, self.k_g = k_v, k_g
+        self.late: deque[tuple[float, float]] = deque(maxlen=round(lag / DT) + 1)
+
+    def __call__(self, obs: dict[str, float]) -> float:
+        self.late.append((obs["a_lead"], obs["v_lead"]))
+        a_lead, v_lead = self.late[0]  # lag seconds ago (the first seen, until then)
+        a = a_lead + self.k_v * (v_lead - obs["v_host"]) + self.k_g * (obs["gap"] - DESIRED_GAP)
+        return min(1.0, a / A_MAX) if a >= 0.0 else max(-1.0, a / -A_MIN)
 
 
 def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint: str | None = None, scenario: str = "ev") -> dict[str, np.ndarray]:
@@ -91,7 +117,7 @@ def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint:
     return run
 
 
-def replay(run: dict[str, np.ndarray], law: AccController, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def replay(run: dict[str, np.ndarray], law: AccController | LeadCopy, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Host speed and gap behind the recorded lead under ``law`` (through the ramp-fine
     actuator if ``ramp``), the law's following term seeing the closing speed through a
     first-order lag of ``lag`` seconds (0: as it is)."""
@@ -99,7 +125,7 @@ def replay(run: dict[str, np.ndarray], law: AccController, ramp: bool, lag: floa
     v, x = float(run["v_host"][0]), float(x_lead[0] - run["gap"][0])
     actuator = FineRamp()
     vs, gaps = [v], [x_lead[0] - x]
-    driver: AccController | LateClosing = LateClosing(law, lag, DT) if lag > 0.0 else law
+    driver: AccController | LeadCopy | LateClosing = LateClosing(law, lag, DT) if lag > 0.0 and isinstance(law, AccController) else law
     for k in range(len(t) - 1):
         u = driver({"gap": x_lead[k] - x, "v_host": v, "v_lead": run["v_lead"][k], "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
         if ramp:
@@ -125,6 +151,7 @@ def main() -> None:
     p.add_argument("--betas", default=None, help="gap gains [1/s^2], comma-separated (default: the scenario's grid)")
     p.add_argument("--gammas", default=None, help="speed-difference gains [1/s], comma-separated (default: the scenario's grid)")
     p.add_argument("--lag", type=float, default=0.0, help="[s] the laws see the closing speed through a first-order lag of this (default 0)")
+    p.add_argument("--copy", action="store_true", help="also the lead copies (LeadCopy) over their grid of lags and gains")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
@@ -155,6 +182,10 @@ def main() -> None:
         done = [replay(r, teacher_law(sc, beta, gamma), ramp=True, lag=a.lag) for r in runs]
         rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}" + (f" lag {a.lag:g} s" if a.lag else ""), "beta": beta, "gamma": gamma, "lag": a.lag,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
+    for lag, k_v, k_g in itertools.product(COPY_LAGS, COPY_SPEED_GAINS, COPY_GAP_GAINS) if a.copy else ():
+        done = [replay(r, LeadCopy(lag, k_v, k_g), ramp=True) for r in runs]
+        rows.append({"follower": f"copy lag {lag:g} s k_v {k_v:g} k_g {k_g:g}", "copy_lag": lag, "k_v": k_v, "k_g": k_g,
+                     "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
     for lam in map(float, a.lams.split(",") if sc == "ev" else ()):
         pts = [preview_bound(r["t"], r["x_lead"], r["v_host"][0], r["gap"][0], r["v_host"][-1], lam) for r in runs]
         rows.append({"follower": f"preview lam {lam:g}", "lam": lam, "rmse": [q.gap_rmse_m for q in pts], "energy": [q.energy_kj_per_mi for q in pts],
@@ -184,6 +215,9 @@ def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target
         pts = sorted((np.mean(r["rmse"]), r["ratio"]) for r in laws if r["gamma"] == gamma)
         betas = ", ".join(f"{r['beta']:g}" for r in laws if r["gamma"] == gamma)
         ax.plot(*zip(*pts, strict=True), "--s", ms=4, label=f"law, gamma {gamma:g} (beta {betas})")
+    for lag in sorted({r["copy_lag"] for r in rows if "copy_lag" in r}):
+        pts = sorted((np.mean(r["rmse"]), r["ratio"]) for r in rows if r.get("copy_lag") == lag)
+        ax.plot(*zip(*pts, strict=True), ":^", ms=4, label=f"lead copy, told the lead's acceleration {lag:g} s late")
     for r in rows:
         if "model" in r:
             ax.plot(np.mean(r["rmse"]), r["ratio"], "*", ms=12, label=f"{r['follower']} (driven from the camera)")
