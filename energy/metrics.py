@@ -16,7 +16,10 @@ sign changes; see :mod:`energy.comfort`): every run starts inside the 55 m targe
 so the start says little about how a controller rides. Gap RMSE stays over the whole
 run, as in the paper's Tables 3 and 4, and so do energy and the safety figures
 (collisions, minimum gap, TTC, headway, maximum speed), because the most dangerous
-moment of a run, a stopped car ahead, can be its start.
+moment of a run, a stopped car ahead, can be its start. So do the unprompted hard
+brakes: a full brake at engagement, behind a lead that asks for none, is a phantom
+brake too, and the count's own test for a threat ahead already excuses a start that
+needs one.
 """
 
 from __future__ import annotations
@@ -157,12 +160,16 @@ def evaluate_run(
 
 
 def comfort_metrics(log: RunLog, settle_s: float = SETTLE_S) -> Metrics:
-    """The comfort figures of :func:`evaluate_run` (rows from ``settle_s`` on)."""
+    """The comfort figures of :func:`evaluate_run`: rows from ``settle_s`` on, but the
+    unprompted hard brakes over the whole run."""
     keep = log.t >= log.t[0] + settle_s - comfort.WINDOW_SLACK_S
     t, accel, force = log.t[keep], log.accel[keep], log.force[keep]
-    out: Metrics = {"settle_s": settle_s}
+    out: Metrics = {
+        "settle_s": settle_s,
+        "unprompted_hard_brakes": comfort.unprompted_hard_brakes(log.t, log.accel, log.gap, log.v_host, log.v_lead),
+    }
     keys = ("accel_rms_mps2", "jerk_rms_mps3", "jerk_max_mps3", "force_rms",
-            "iso_decel_window_share", "iso_jerk_window_share", "accel_sign_changes_per_min", "unprompted_hard_brakes")  # fmt: skip
+            "iso_decel_window_share", "iso_jerk_window_share", "accel_sign_changes_per_min")  # fmt: skip
     if t.size < 2:
         return out | dict.fromkeys(keys)
     w = _weights(t)
@@ -175,7 +182,6 @@ def comfort_metrics(log: RunLog, settle_s: float = SETTLE_S) -> Metrics:
         "iso_decel_window_share": comfort.decel_window_share(t, accel),
         "iso_jerk_window_share": comfort.jerk_window_share(t, accel),
         "accel_sign_changes_per_min": comfort.sign_changes_per_min(t, accel),
-        "unprompted_hard_brakes": comfort.unprompted_hard_brakes(t, accel, log.gap[keep], log.v_host[keep], log.v_lead[keep]),
     }
 
 

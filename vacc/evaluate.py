@@ -81,6 +81,9 @@ DRIVING_ROWS = [
     Row("Min time-to-collision", "ttc_min_s", "s", 2, "min", follower_only=True, better="higher"),
     Row("Min time headway", "headway_min_s", "s", 2, "min", follower_only=True, better="higher"),
     Row("Max speed", "speed_max_mps", "m/s", 2, "max", better=f"≤ {DEFAULT_SET_SPEED:g}"),
+    # from engagement, as the safety figures: a phantom brake at the start is still one
+    Row(f"Unprompted hard brakes (past {ISO_DECEL_LIMIT_MPS2:g} m/s^2, no threat ahead)", "unprompted_hard_brakes", "", 0, "sum",
+        follower_only=True),
 ]
 # After --settle (energy.metrics): the ride, judged by ISO 15622 (energy.comfort).
 COMFORT_ROWS = [
@@ -90,8 +93,6 @@ COMFORT_ROWS = [
     Row(f"ISO decel: 2-s windows over {ISO_DECEL_LIMIT_MPS2:g} m/s^2", "iso_decel_window_share",
         "%", 1, scale=100.0),
     Row("Accel sign changes", "accel_sign_changes_per_min", "1/min", 1),
-    Row(f"Unprompted hard brakes (past {ISO_DECEL_LIMIT_MPS2:g} m/s^2, no threat ahead)", "unprompted_hard_brakes", "", 0, "sum",
-        follower_only=True),
 ]
 COMBINE: dict[str, Callable[[list[Any]], Any]] = {
     "mean": lambda v: float(np.mean(v)), "sum": lambda v: int(sum(v)),
@@ -475,7 +476,7 @@ def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
 @click.option("--seeds", default=None, metavar="SEEDS", help=f"Episode seeds, a range or a list: 0-9, 0,3,5 or 0-2,7. Over several, the paper suite's tables give means with {stats.CONFIDENCE:.0%} bootstrap intervals and the interquartile mean, and the figures the spread over seeds. Default: 0 (paper), {SAFETY_SEEDS} (safety).")
 @click.option("--seed", default=None, type=int, help="One episode seed (initial conditions, traffic, scenery); the same as --seeds N.")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
-@click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s].")
+@click.option("--settle", default=SETTLE_S, show_default=True, type=float, callback=finite_non_negative, help="Seconds at the start of each run left out of the comfort rows [s] (not of the unprompted hard brakes, counted from engagement).")
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given.")
@@ -501,7 +502,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
             found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
             if not with_acc and not found:
                 raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc, settle=settle))
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:

@@ -17,7 +17,7 @@ from typing import Any
 
 import click
 
-from energy import SETTLE_S, RunLogError, comfort, read_run_log
+from energy import RunLogError, comfort, read_run_log
 from energy.metrics import comfort_metrics
 from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
@@ -79,9 +79,9 @@ def safety_jobs(
     ]
 
 
-def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED, settle: float = SETTLE_S) -> dict[str, Any]:
+def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED) -> dict[str, Any]:
     """Collision, minimum gap [m] and maximum speed [m/s] of one run log, and whether it
-    passes; and, not part of the verdict, its unprompted hard brakes from ``settle`` [s] on
+    passes; and, not part of the verdict, its unprompted hard brakes from engagement on
     (:func:`energy.comfort.unprompted_hard_brakes`: phantom brakes the minima cannot show).
 
     Raises:
@@ -94,7 +94,7 @@ def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED, settle: flo
     collision = bool(run.collision.any())
     min_gap, max_speed = float(run.gap.min()), float(run.v_host.max())
     ok = not collision and min_gap >= MIN_GAP and max_speed <= set_speed + SPEED_MARGIN
-    brakes = comfort_metrics(run, settle)["unprompted_hard_brakes"] or 0
+    brakes = comfort_metrics(run)["unprompted_hard_brakes"] or 0
     return {"collision": collision, "min_gap_m": min_gap, "max_speed_mps": max_speed, "passed": ok, "unprompted_hard_brakes": brakes}
 
 
@@ -137,7 +137,6 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
-    settle: float = SETTLE_S,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
@@ -149,7 +148,7 @@ def run_suite(
     (out / "logs").mkdir(parents=True, exist_ok=True)
     work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc)
     drive_jobs(work, jobs, "safety suite")
-    table, rows = safety_table(work, [score_run(j.log, settle=settle) for j in work])
+    table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text("# Safety suite\n\n" + table)
     with open(out / "safety.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))

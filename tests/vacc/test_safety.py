@@ -45,18 +45,17 @@ def test_a_run_passes_only_without_collision_close_gap_or_overspeed(tmp_path):
     assert score_run(_log(tmp_path, [(33.5 + SPEED_MARGIN, 60.0, 0)] * 2))["passed"]
 
 
-def test_unprompted_hard_brakes_are_counted_after_settling_but_do_not_fail_a_run(tmp_path):
-    # 30 s behind a lead at the same speed, 55 m ahead; a full brake at 5 s and one at 20 s
-    accel = [-6.0 if i in (50, 51, 200, 201) else 0.0 for i in range(300)]
-    log = _log(tmp_path, [(25.0, 55.0, 0)] * 300, accel)
-    score = score_run(log)  # the default settling time, 15 s, leaves the first out
-    assert score["passed"] and score["unprompted_hard_brakes"] == 1
-    assert score_run(log, settle=0.0)["unprompted_hard_brakes"] == 2
+def test_unprompted_hard_brakes_are_counted_from_engagement_but_do_not_fail_a_run(tmp_path):
+    # 30 s behind a lead at the same speed, 55 m ahead; a full brake at 1 s (inside the
+    # comfort figures' 15 s settle: a phantom brake at engagement is one too) and one at 20 s
+    accel = [-6.0 if i in (10, 11, 200, 201) else 0.0 for i in range(300)]
+    score = score_run(_log(tmp_path, [(25.0, 55.0, 0)] * 300, accel))
+    assert score["passed"] and score["unprompted_hard_brakes"] == 2
     job = SimpleNamespace(method="acc", checkpoint=None, scenario="ev", trajectory="constant")
     table, rows = safety_table([job, job], [score, score_run(_log(tmp_path, [(25.0, 55.0, 0)] * 300))])
-    assert rows[0]["unprompted_hard_brakes"] == 1 and rows[0]["runs_with_unprompted"] == 1
-    assert "| acc (ev) | constant | 2/2 | 0 | 55.00 | 25.00 | 1 | PASS |" in table
-    assert "| acc (ev) | 2/2 | 1 (1) |" in table
+    assert rows[0]["unprompted_hard_brakes"] == 2 and rows[0]["runs_with_unprompted"] == 1
+    assert "| acc (ev) | constant | 2/2 | 0 | 55.00 | 25.00 | 2 | PASS |" in table
+    assert "| acc (ev) | 2/2 | 2 (1) |" in table
 
 
 def test_a_bad_run_log_fails_naming_the_file(tmp_path):
