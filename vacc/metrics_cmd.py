@@ -68,7 +68,7 @@ def _fmt(value: float | int | str | None) -> str:
     show_default=True,
     callback=finite_non_negative,
     help="Seconds at the start left out of the comfort figures (accel, jerk, ISO windows, "
-    "sign changes); gap RMSE, energy and safety stay over the whole run.",
+    "sign changes); gap RMSE, energy, safety and the unprompted hard brakes stay over the whole run.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def metrics(
