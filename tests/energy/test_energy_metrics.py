@@ -156,6 +156,17 @@ def test_settle_longer_than_the_run_leaves_comfort_undefined() -> None:
     assert m["jerk_rms_mps3"] == 0.0 and m["iso_jerk_window_share"] is None
 
 
+def test_unprompted_hard_brakes_count_from_engagement_whatever_the_settle() -> None:
+    """A full brake at 2 s, 55 m behind a steady lead: inside the settle, still a phantom brake."""
+    t = np.arange(301) * 0.1
+    accel = np.where(np.abs(t - 2.0) < 0.05, -6.0, 0.0)
+    run = _log(t=t, v_host=np.full(t.size, 20.0), v_lead=np.full(t.size, 20.0), gap=np.full(t.size, 55.0), accel=accel)
+    for settle in (0.0, 15.0, 30.0):  # 30 s leaves the comfort figures undefined, not this count
+        m = evaluate_run(run, "corolla", settle_s=settle)
+        assert m["unprompted_hard_brakes"] == 1, settle
+    assert evaluate_run(run, "corolla")["iso_decel_window_share"] == 0.0  # the brake is left out of the comfort figures
+
+
 @pytest.mark.parametrize("option", ["time_gap_s", "d_safe_m", "settle_s", "desired_gap_m"])
 @pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
 def test_bad_options_are_refused(option: str, value: float) -> None:
