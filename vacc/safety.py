@@ -115,7 +115,7 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
         })  # fmt: skip
     lines = [
         f"Pass: no collision, minimum gap >= {MIN_GAP:g} m, speed <= set speed ({DEFAULT_SET_SPEED:g} m/s) + {SPEED_MARGIN:g} m/s.",
-        "Unprompted hard brakes (after the settling time; not part of the verdict): decelerations past",
+        "Unprompted hard brakes (from engagement; not part of the verdict): decelerations past",
         f"{comfort.ISO_DECEL_LIMIT_MPS2:g} m/s^2 with no threat in the {comfort.PROMPT_WINDOW_S:g} s before (energy.comfort.unprompted_hard_brakes).",
         "",
         "| driver | scenario | passed | collisions | min gap (m) | max speed (m/s) | unprompted hard brakes | verdict |",
