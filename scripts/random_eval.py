@@ -6,7 +6,8 @@
 Each run is `vacc drive --trajectory random --seed S`: a random lead (eq. 7 for the ICE
 car, a real-trace window for the EV), start, traffic and light that no model was
 selected on (training draws its seeds from [0, 2^31); selection used random:1..4). The
-ACC is always driven alongside. Writes runs/random-eval-<scenario>/summary.json and
+ACC drives alongside unless --no-acc. Writes the logs and summary.json to --out (default
+runs/random-eval-<scenario>; give each evaluation its own to keep earlier ones) and
 prints, per controller, the mean and worst gap RMSE to 55 m, the mean energy, and the
 comfort figures after the first 15 s.
 """
@@ -43,15 +44,28 @@ def main() -> None:
     p.add_argument("--scenario", choices=("ice", "ev"), default="ice")
     p.add_argument("--seeds", default="100-107", help="episode seeds, e.g. 100-107")
     p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--out", type=Path, default=None, help="folder for the logs and summary.json (default: runs/random-eval-<scenario>)")
+    p.add_argument("--no-acc", action="store_true", help="drive the models only, not the ACC beside them")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT")
     a = p.parse_args()
-    controllers = {"acc": ["--controller", "acc"]}
+    controllers = {} if a.no_acc else {"acc": ["--controller", "acc"]}
     for item in a.models:
-        name, _, path = item.partition("=")
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            p.error(f"{item!r} is not NAME=CHECKPOINT")
+        if name in controllers:
+            p.error(f"{name!r} is named twice (the ACC is 'acc')")
+        if not Path(path).is_file():
+            p.error(f"{name}: no checkpoint file at {path}")
         controllers[name] = ["--controller", "ddqn", "--checkpoint", path]
-    out = Path(f"runs/random-eval-{a.scenario}")
+    if not controllers:
+        p.error("nothing to drive: give NAME=CHECKPOINT or leave out --no-acc")
+    try:
+        seeds = parse_seeds(a.seeds)
+    except ValueError as e:
+        p.error(f"--seeds: {e}")
+    out = a.out if a.out is not None else Path(f"runs/random-eval-{a.scenario}")
     out.mkdir(parents=True, exist_ok=True)
-    seeds = parse_seeds(a.seeds)
     jobs = [(name, args, s) for name, args in controllers.items() for s in seeds]
     with ThreadPoolExecutor(a.jobs) as pool:  # each job is its own server and client processes
         done = list(pool.map(lambda j: _drive(a.scenario, j[0], j[1], j[2], out), jobs))
