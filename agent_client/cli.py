@@ -35,7 +35,7 @@ from agent_client.launcher import local_server
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
 from protocol.auth import load_key
-from protocol.constants import CAMERA_SIZE
+from protocol.constants import CAMERA_SIZE, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
@@ -130,6 +130,7 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--log", "log_path", required=True, type=click.Path(dir_okay=False, writable=True), help="Run log CSV to write.")
 @click.option("--duration", default=None, type=click.FloatRange(min=0.1), help="Stop after this many simulated seconds.")
 @click.option("--faults", callback=parse_faults, default=None, help="Inject faults on the client's sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05'.")
+@click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of the spawned server; with --server, start it with vacc serve --traffic.")
 @click.option("--server-faults", default=None, help="Faults for the spawned server's sends (same syntax).")
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key of the server (vacc serve --key-file): every datagram carries a MAC.")
@@ -155,6 +156,7 @@ def drive(
     log_path: str,
     duration: float | None,
     faults: FaultConfig | None,
+    traffic: int,
     server_faults: str | None,
     give_up: float,
     key_file: str | None,
@@ -173,6 +175,8 @@ def drive(
     (vacc train --aux-gap). Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
+    if server is not None and traffic != TRAFFIC_PER_LANE:
+        raise click.UsageError(f"--traffic {traffic} sets a spawned server's traffic; start the --server one with vacc serve --traffic {traffic}")
     trace = load_lead(trajectory)
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
     policy: Any = None
@@ -203,7 +207,7 @@ def drive(
             raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
-    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else [])
+    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + ["--traffic", str(traffic)]
     key = None
     if key_file is not None:
         try:

@@ -18,6 +18,8 @@ __all__ = [
     "DESIRED_GAP",
     "CAMERA_SIZE",
     "MIN_GAP",
+    "TRAFFIC_PER_LANE",
+    "TRAFFIC_PER_LANE_RANGE",
 ]
 
 A_MIN = -5.5  # [m/s^2] acceleration at u = -1 (full brake), paper Sec. 4
@@ -30,3 +32,5 @@ FORCES.setflags(write=False)
 DESIRED_GAP = 55.0  # [m] the paper's desired gap: the gap reward's peak and the RMSE target
 CAMERA_SIZE = (400, 400)  # [px] (width, height) of the full front camera
 MIN_GAP = 2.0  # [m] the smallest gap a safe run may reach: the safety suite's floor and best.pt's
+TRAFFIC_PER_LANE = 3  # cars in each adjacent lane (twice as many oncoming): the server's default --traffic
+TRAFFIC_PER_LANE_RANGE = (0, 10)  # 10 a lane is one car every 35 m of the 350 m traffic window

@@ -9,6 +9,7 @@ import sys
 import click
 
 from protocol.auth import load_key
+from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
@@ -36,6 +37,7 @@ log = logging.getLogger("vacc.server")
 @click.option("--seed", default=0, show_default=True, type=int, help="Salt mixed into every episode seed.")
 @click.option("--realtime", is_flag=True, help="Pace the world to the wall clock (for a human driver).")
 @click.option("--substeps", default=5, show_default=True, type=click.IntRange(1, 1000), help="Physics steps of 0.02 s per control step.")
+@click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming), drawn from the episode seed.")
 @click.option("--session-timeout", default=10.0, show_default=True, type=click.FloatRange(0.1, 3600), help="Seconds of silence before a client's session is freed.")
 @click.option("--faults", callback=_faults, default=None, help="Inject faults on sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05,seed=1'.")
 @click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")
@@ -50,6 +52,7 @@ def serve(
     seed: int,
     realtime: bool,
     substeps: int,
+    traffic: int,
     session_timeout: float,
     faults: FaultConfig | None,
     max_datagram: int,
@@ -85,7 +88,7 @@ def serve(
         seed=seed,
         realtime=realtime,
         session_timeout=session_timeout,
-        world=WorldConfig(substeps=substeps),
+        world=WorldConfig(substeps=substeps, traffic_per_lane=traffic),
         faults=faults,
         max_datagram=max_datagram,
         parent_pid=parent_pid,

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
+from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     GAP_LIMIT,
@@ -56,8 +57,13 @@ class WorldConfig:
 
     physics_dt: float = 0.02  # [s] paper Sec. 4
     substeps: int = 5  # physics steps per control step: 0.1 s control period (10 Hz)
-    traffic_per_lane: int = 3  # cars in each adjacent and oncoming lane
+    traffic_per_lane: int = TRAFFIC_PER_LANE  # cars in each adjacent lane; twice as many oncoming
     randomize_light: bool = True  # draw the sun per episode for random trajectories and lead scenarios
+
+    def __post_init__(self) -> None:
+        lo, hi = TRAFFIC_PER_LANE_RANGE
+        if not lo <= self.traffic_per_lane <= hi:
+            raise ValueError(f"traffic_per_lane must be in [{lo}, {hi}], got {self.traffic_per_lane}")
 
     @property
     def control_period(self) -> float:

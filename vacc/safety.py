@@ -19,7 +19,7 @@ import click
 
 from energy import RunLogError, comfort, read_run_log
 from energy.metrics import comfort_metrics
-from protocol.constants import MIN_GAP
+from protocol.constants import MIN_GAP, TRAFFIC_PER_LANE
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
 
 __all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
@@ -56,6 +56,7 @@ def safety_jobs(
     cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS,
     acc: bool = True,
+    traffic: int = TRAFFIC_PER_LANE,
 ) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
@@ -68,11 +69,12 @@ def safety_jobs(
         cold_start: engage the models at frame 0, without the camera's pre-roll.
         vehicles: whose ACC drives (the models drive their own vehicle).
         acc: whether the ACC drives at all (``--methods`` without acc: the models alone).
+        traffic: cars in each adjacent lane of every run (the servers' ``--traffic``).
     """
     drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
-                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start)  # fmt: skip
+                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, traffic)  # fmt: skip
         for method, vehicle, path in drivers
         for trajectory in scenarios
         for seed in seeds
@@ -137,19 +139,20 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
+    traffic: int = TRAFFIC_PER_LANE,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
         The markdown table.
     """
-    from vacc.evaluate import Job, drive_jobs
+    from vacc.evaluate import Job, drive_jobs, traffic_note
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc)
+    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, traffic=traffic)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
-    (out / "safety.md").write_text("# Safety suite\n\n" + table)
+    (out / "safety.md").write_text(f"# Safety suite{traffic_note(traffic)}\n\n" + table)
     with open(out / "safety.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

@@ -16,6 +16,7 @@ from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.rl.evaluation import eval_episode
+from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     LEAD_SCENARIOS,
@@ -66,6 +67,7 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
             (cfg.brake_margin > 0.0, "brake_margin", f"--brake-margin {cfg.brake_margin:g}", "stores no gaps"),
             (cfg.preroll, "preroll", "--preroll", "starts its episodes cold"),
             (cfg.action != "levels", "action", f"--action {cfg.action}", "stores no controls"),
+            (cfg.train_traffic != TRAFFIC_PER_LANE, "train_traffic", f"--train-traffic {cfg.train_traffic}", "spawns servers with the default traffic"),
             (tuple(cfg.train_trajectories) != (RANDOM,), "train_trajectories", f"--train-trajectories {','.join(cfg.train_trajectories)}", "drives random leads only"),
         )
         if wanted
@@ -105,6 +107,11 @@ class Config:
     """Comma-separated lead trajectories of training episodes, one drawn per episode (repeat a
     name to weight it): "random" (the scenario's generator) and lead scenarios such as stopped,
     brake-stop, catch-up (docs/scenarios.md); each with a fresh seed from the run's RNG."""
+    train_traffic: int = TRAFFIC_PER_LANE
+    """Cars in each adjacent lane (twice as many oncoming) of training episodes: the spawned
+    training server's --traffic. Neighbours and their shadows are what a camera student may
+    mistake for a threat, and a teacher's labels ignore them; more of them teach it to. The
+    evaluation episodes (best.pt) keep the server's default, as vacc drive and vacc evaluate."""
     total_steps: int = 200_000
     """Environment steps (control periods of 0.1 s) to train for, in total."""
     seed: int = 1
@@ -305,6 +312,8 @@ class Config:
             raise bad("eco_weights", why)
         if self.crash_reward is not None and not CRASH_REWARD_RANGE[0] <= self.crash_reward <= CRASH_REWARD_RANGE[1]:
             raise bad("crash_reward", f"must be in [{CRASH_REWARD_RANGE[0]:g}, {CRASH_REWARD_RANGE[1]:g}], got {self.crash_reward}")
+        if not TRAFFIC_PER_LANE_RANGE[0] <= self.train_traffic <= TRAFFIC_PER_LANE_RANGE[1]:
+            raise bad("train_traffic", f"must be in [{TRAFFIC_PER_LANE_RANGE[0]}, {TRAFFIC_PER_LANE_RANGE[1]}] cars a lane, got {self.train_traffic}")
         if self.teacher not in TEACHERS:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
         if not self.teacher_brake >= 0.0:

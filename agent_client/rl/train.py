@@ -105,7 +105,8 @@ def train(
                 raise InputFileError(f"{replay_path}: saved at a step other than latest.pt's {state.global_step}")
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
-            stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, server_args=learner.server_args, zoom=cfg.zoom,
+            stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,
+            server_args=(*learner.server_args, "--traffic", str(cfg.train_traffic)),  # evaluations keep the default
             set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward, preroll=cfg.preroll,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)

@@ -79,3 +79,23 @@ def test_stack_stride_picks_older_frames(server):
 def test_bad_arguments():
     with pytest.raises(ValueError, match="reward"):
         VisionACCEnv(("127.0.0.1", 9), reward="speed")
+
+
+def test_server_traffic_changes_the_picture_not_the_drive():
+    # Two real servers, 0 and 8 cars a lane: the same seed and actions give the same
+    # speeds and gaps (the A/B of docs/training.md), and a busier picture.
+    runs = []
+    for n in (0, 8):
+        env = VisionACCEnv(scenario="ev", trajectory="constant", episode_seconds=3.0, server_args=("--traffic", str(n)), zoom=2)
+        try:
+            obs, info = env.reset(seed=2)
+            gaps, frames = [info["gap"]], [obs["frames"][-1].copy()]
+            for a in (12, 12, 8, 10, 10):
+                obs, _, _, _, info = env.step(a)
+                gaps.append(info["gap"])
+                frames.append(obs["frames"][-1].copy())
+            runs.append((gaps, np.stack(frames)))
+        finally:
+            env.close()
+    assert runs[0][0] == runs[1][0]
+    assert not np.array_equal(runs[0][1], runs[1][1])

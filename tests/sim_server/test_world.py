@@ -3,6 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import MAX_PREROLL, PREROLL_MIN_GAP
 from sim_server import trajectory as T
 from sim_server.errors import InitialConditionError, ScenarioError, TrajectoryError
@@ -116,6 +117,25 @@ def test_traffic_faster_left_slower_right():
     scene = w.scene()
     assert scene.lead is not None and scene.lead.dx == pytest.approx(w.state.gap)
     assert {c.lane for c in scene.cars} >= {-1, 0, 1}
+
+
+@pytest.mark.parametrize("n", [0, 1, TRAFFIC_PER_LANE, 8, TRAFFIC_PER_LANE_RANGE[1]])
+def test_traffic_per_lane_sets_the_neighbours_and_nothing_else(n):
+    # --traffic is a clean A/B for a camera policy: the same seed and actions drive the
+    # same lead and host whatever the number of neighbours; only the picture changes.
+    actions = np.random.default_rng(5).uniform(-1, 1, 200)
+    w = World(WorldConfig(traffic_per_lane=n))
+    states = run(w, actions, scenario="ev", seed=3, trajectory="cut-in")
+    lanes = [lane for _, lane, _ in w.traffic]
+    assert lanes.count(-1) == n and lanes.count(1) == n and len(w.oncoming) == 2 * n
+    assert states == run(World(), actions, scenario="ev", seed=3, trajectory="cut-in")
+    assert len([c for c in w.scene().cars if c.lane != 0]) <= 4 * n
+
+
+@pytest.mark.parametrize("n", [-1, TRAFFIC_PER_LANE_RANGE[1] + 1])
+def test_traffic_per_lane_out_of_range_is_refused(n):
+    with pytest.raises(ValueError, match=r"traffic_per_lane must be in \[0, 10\], got"):
+        WorldConfig(traffic_per_lane=n)
 
 
 @pytest.mark.parametrize("scenario", ["ice", "ev"])

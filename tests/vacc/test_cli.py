@@ -65,3 +65,15 @@ def test_vacc_serve_in_process_follows_the_group_unless_given_its_own_level(opti
                             capture_output=True, text=True, timeout=60)  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert (STATS in result.stderr) is shown, result.stderr
+
+
+def test_drive_traffic_goes_to_the_spawned_server_and_is_refused_with_server(tmp_path):
+    result = _drive(tmp_path, "-vv")
+    assert "--traffic 3" in result.stderr, result.stderr
+    args = [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--duration", "1", "--log", str(tmp_path / "t.csv")]
+    for n in ("-1", "11"):
+        bad = subprocess.run([*args, "--traffic", n], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and "--traffic" in bad.stderr and "0<=x<=10" in bad.stderr, bad.stderr
+    bad = subprocess.run([*args, "--traffic", "5", "--server", "127.0.0.1:9"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "vacc serve --traffic 5" in bad.stderr, bad.stderr
+    assert not (tmp_path / "t.csv").exists()

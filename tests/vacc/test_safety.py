@@ -84,11 +84,12 @@ def test_a_given_scenario_and_lead_scenarios_drive_only_those(tmp_path):
     out = tmp_path / "safety"
     result = subprocess.run(
         [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ev", "--lead-scenarios", "cut-in,stopped",
-         "--seeds", "0,1", "--models", str(models), "--out", str(out), "--jobs", "2"],
+         "--seeds", "0,1", "--models", str(models), "--out", str(out), "--jobs", "2", "--traffic", "0"],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     table = (out / "safety.md").read_text()
+    assert table.startswith("# Safety suite, 0 cars in each adjacent lane (default 3)\n")
     assert "| acc (ev) | stopped | 2/2 |" in table and "| acc (ev) | cut-in | 2/2 |" in table
     assert "acc (ice)" not in table and "slow-lead" not in table
     assert len(list((out / "logs").glob("*.csv"))) == 4
@@ -119,7 +120,8 @@ def test_methods_choose_the_drivers(tmp_path):
         (["--suite", "safety", "--lead-scenarios", "stopped,moose"], "--lead-scenarios"),
         (["--suite", "safety", "--lead-scenarios", ","], "--lead-scenarios"),
         (["--lead-scenarios", "stopped"], "--lead-scenarios"),  # the paper suite drives test-1..4
-        (["--suite", "safety", "--methods", "acc,human"], "--methods"),  # the suite has no human driver
+        (["--suite", "safety", "--methods", "acc,human"], "--methods"),
+        (["--suite", "safety", "--traffic", "11"], "--traffic"),  # the suite has no human driver
         (["--suite", "safety", "--methods", "ddqn-eco", "--models", "no-such-models"], "--methods"),
     ],
 )

@@ -327,3 +327,19 @@ def test_overwrite_removes_the_old_runs_files_tensorboard_events_included_and_no
     load_policy(out / "best.pt")
     # what this run wrote is what the next --overwrite removes: RUN_FILES names every file
     assert {p.name for p in run_files(out)} == {p.name for p in out.iterdir() if p.is_file()} - set(NOT_THE_RUNS)
+
+
+def test_train_traffic_goes_to_the_training_server_only(tmp_path):
+    # The training stream sees the busier road; best.pt is chosen on the default one, as
+    # vacc drive and vacc evaluate drive it.
+    args = ["--steps", "40", "--learning-starts", "20", "--batch-size", "8", "--buffer-size", "200", "--episode-seconds", "2",
+            "--eval-trajectories", "stopped:1", "--eval-seconds", "1", "--eval-every", "0", "--train-traffic", "7"]  # fmt: skip
+    cmd = [sys.executable, "-m", "vacc", "-vv", "train", "--reward", "gap", *args, "--out", str(tmp_path / "run")]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    started = [line for line in result.stderr.splitlines() if "starting a simulator server: " in line]
+    assert len(started) == 2 and sum("--traffic 7" in line for line in started) == 1, started
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["train_traffic"] == 7
+    bad = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--train-traffic", "11", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "--train-traffic" in bad.output and "[0, 10]" in bad.output, bad.output
+    assert not (tmp_path / "bad").exists()
