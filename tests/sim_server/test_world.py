@@ -128,7 +128,9 @@ def test_traffic_per_lane_sets_the_neighbours_and_nothing_else(n):
     states = run(w, actions, scenario="ev", seed=3, trajectory="cut-in")
     lanes = [lane for _, lane, _ in w.traffic]
     assert lanes.count(-1) == n and lanes.count(1) == n and len(w.oncoming) == 2 * n
-    assert states == run(World(), actions, scenario="ev", seed=3, trajectory="cut-in")
+    default = World()
+    assert states == run(default, actions, scenario="ev", seed=3, trajectory="cut-in")
+    assert w.light == default.light and w.scene().scenery_seed == default.scene().scenery_seed
     assert len([c for c in w.scene().cars if c.lane != 0]) <= 4 * n
 
 
