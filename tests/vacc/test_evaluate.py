@@ -115,6 +115,20 @@ def test_eco_model_joins_the_default_methods_with_a_pareto_figure(tmp_path):
         assert (out / f"fig_pareto.{ext}").stat().st_size > 1000
 
 
+def test_traffic_is_named_and_leaves_the_accs_drive_alone(tmp_path):
+    # The ACC reads the gap, not the picture: an empty road drives it the same, and the
+    # table says which road it was.
+    logs = {}
+    for n in ("0", "3"):
+        out = tmp_path / n
+        result = vacc("evaluate", "--out", str(out), "--methods", "acc", "--duration", "2", "--jobs", "2", "--traffic", n)
+        assert result.returncode == 0, result.stderr
+        title = (out / "table.md").read_text().splitlines()[0]
+        assert title.endswith(", 0 cars in each adjacent lane (default 3)") == (n == "0"), title
+        logs[n] = [(out / "logs" / f"acc-test-{k}.csv").read_bytes() for k in range(1, 5)]
+    assert logs["0"] == logs["3"]
+
+
 def _write_log(path, gap: float, v_max: float, flips: bool, phantom: bool = False) -> None:
     """A 30 s log at 0.1 s: steady at 20 m/s with one row at v_max and gap; ±1.5 m/s²
     flips every second over 20-25 s when flips; one row braking at 4 m/s² at 26 s, 55 m
