@@ -120,8 +120,8 @@ def test_methods_choose_the_drivers(tmp_path):
         (["--suite", "safety", "--lead-scenarios", "stopped,moose"], "--lead-scenarios"),
         (["--suite", "safety", "--lead-scenarios", ","], "--lead-scenarios"),
         (["--lead-scenarios", "stopped"], "--lead-scenarios"),  # the paper suite drives test-1..4
-        (["--suite", "safety", "--methods", "acc,human"], "--methods"),
-        (["--suite", "safety", "--traffic", "11"], "--traffic"),  # the suite has no human driver
+        (["--suite", "safety", "--methods", "acc,human"], "--methods"),  # the suite has no human driver
+        (["--suite", "safety", "--traffic", "11"], "--traffic"),
         (["--suite", "safety", "--methods", "ddqn-eco", "--models", "no-such-models"], "--methods"),
     ],
 )
