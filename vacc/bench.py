@@ -324,6 +324,8 @@ def run_bench(quick: bool) -> dict[str, Any]:
 
         lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)
         rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}}
+        peer_lat = bench_sb3.sb3_decision_latency(repeats=300 if quick else 2000)
+        rows["sb3_decision_peer"] = peer_lat if "error" in peer_lat else {"ms": {"median": peer_lat["median_s"] * 1e3, "p90": peer_lat["p90_s"] * 1e3}}
         sample = ddqn_bench.sample_latency(capacity=20_000 if quick else 100_000)
         rows["replay_sample"] = {"ms": {"median": sample["median_s"] * 1e3, "p90": sample["p90_s"] * 1e3}, "capacity": sample["capacity"]}
         rows["update_cost"] = {"ms": ddqn_bench.update_cost(10 if quick else 30)["median_s"] * 1e3}
@@ -341,6 +343,8 @@ def run_bench(quick: bool) -> dict[str, Any]:
     if "error" not in rows["sb3_dqn_peer"]:
         for name in ("ddqn_training", "ddqn_training_parallel"):
             rows[name]["x_sb3"] = rows[name]["steps_per_s_overall"] / rows["sb3_dqn_peer"]["steps_per_s_overall"]
+    if "error" not in rows["sb3_decision_peer"]:
+        rows["decision_latency"]["fraction_of_sb3"] = rows["decision_latency"]["ms"]["median"] / rows["sb3_decision_peer"]["ms"]["median"]
     if "error" not in rows["sb3_replay_peer"]:
         rows["replay"]["fraction_of_sb3"] = rows["replay"]["bytes_per_transition"] / rows["sb3_replay_peer"]["bytes_per_transition"]
     if "error" not in rows["highway_env_peer"]:
@@ -393,7 +397,10 @@ def format_table(result: dict[str, Any]) -> str:
         r = peer["steps_per_s"]
         lines.append(f"{'highway-env highway-v0 (peer)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  8x150x105 gray, 50 Hz")
     d = f["decision_latency"]["ms"]
-    lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 0.5 ms (paper 3.58 ms GPU)")
+    frac = f["decision_latency"].get("fraction_of_sb3")
+    lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 0.5 ms (paper 3.58 ms GPU)" + (f" ({frac:.2f}x SB3)" if frac else ""))
+    peer = f["sb3_decision_peer"]
+    lines.append(f"{'SB3 predict, same net, stack given':34} " + (peer["error"] if "error" in peer else f"{peer['ms']['median']:>9.3f} ms {'p90 ' + format(peer['ms']['p90'], '.3f'):>22}  (peer)"))
     d = f["replay_sample"]["ms"]
     lines.append(f"{'replay sample, 32 x 5-step returns':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 1 ms ({f['replay_sample']['capacity']} full)")
     lines.append(f"{'batch-32 update (1 thread, CPU time)':34} {f['update_cost']['ms']:>9.1f} ms")

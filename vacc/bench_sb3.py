@@ -1,4 +1,5 @@
-"""Stable-Baselines3 peers for `vacc bench`: DQN training steps/s and replay bytes.
+"""Stable-Baselines3 peers for `vacc bench`: DQN training steps/s, replay bytes and the
+decision latency.
 
 SB3's DQN runs on our own Gymnasium env (the real UDP path), with a features
 extractor of exactly our network's size, so the two learners differ only in their
@@ -81,20 +82,58 @@ def sb3_training_rate_isolated(steps: int, learning_starts: int, train_every: in
     return dict(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def sb3_decision_latency(repeats: int = 300) -> dict[str, Any]:
+    """Median and p90 [s] of SB3's ``policy.predict`` (deterministic, batch 1, one thread) for a
+    stacked observation, with a Q-network of our size: SB3's own inference path beside ours.
+
+    It is handed the stack ready-made (eight 105x150 uint8 frames and eight speeds), so it
+    does less than our decision, which also crops and stacks the received frame.
+    """
+    try:
+        import torch
+        from stable_baselines3.dqn.policies import MultiInputPolicy
+    except ImportError:
+        return {"error": INSTALL_HINT}
+    obs_space, action_space = _spaces()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        policy = MultiInputPolicy(obs_space, action_space, lambda _: 1e-4, net_arch=[], features_extractor_class=_extractor_class())
+        policy.set_training_mode(False)
+        rng = np.random.default_rng(0)
+        obs = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32)}
+        times = []
+        for i in range(repeats + 20):
+            t0 = time.perf_counter()
+            policy.predict(obs, deterministic=True)
+            if i >= 20:  # warm-up
+                times.append(time.perf_counter() - t0)
+    finally:
+        torch.set_num_threads(threads)
+    return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
+
+
+def _spaces() -> tuple[Any, Any]:
+    """Our observation (a stack of eight frames and speeds) and action (the paper's force levels) spaces."""
+    from gymnasium import spaces
+
+    from agent_client.env import MAX_SPEED
+    from agent_client.preprocess import FRAME_H, FRAME_W
+    from protocol.constants import N_ACTIONS
+
+    obs_space = spaces.Dict(
+        {"frames": spaces.Box(0, 255, (8, FRAME_H, FRAME_W), np.uint8), "speeds": spaces.Box(0.0, MAX_SPEED, (8,), np.float32)}
+    )
+    return obs_space, spaces.Discrete(N_ACTIONS)
+
+
 def sb3_replay_bytes(capacity: int = 1000) -> dict[str, Any]:
     """Bytes per transition of SB3's buffer for our observation (it stores obs and next obs)."""
     try:
         from stable_baselines3.common.buffers import DictReplayBuffer
     except ImportError:
         return {"error": INSTALL_HINT}
-    from gymnasium import spaces
-
-    from agent_client.env import MAX_SPEED
-    from agent_client.preprocess import FRAME_H, FRAME_W
-
-    obs_space = spaces.Dict(
-        {"frames": spaces.Box(0, 255, (8, FRAME_H, FRAME_W), np.uint8), "speeds": spaces.Box(0.0, MAX_SPEED, (8,), np.float32)}
-    )
-    buf = DictReplayBuffer(capacity, obs_space, spaces.Discrete(21), device="cpu")
+    obs_space, action_space = _spaces()
+    buf = DictReplayBuffer(capacity, obs_space, action_space, device="cpu")
     arrays = [*buf.observations.values(), *buf.next_observations.values(), buf.actions, buf.rewards, buf.dones, buf.timeouts]
     return {"bytes_per_transition": sum(a.nbytes for a in arrays) / capacity}

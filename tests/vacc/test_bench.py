@@ -32,7 +32,7 @@ def test_quick_bench_reports_every_figure(tmp_path):
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
-    for name in ("highway_env_peer", "sb3_dqn_peer", "sb3_replay_peer"):
+    for name in ("highway_env_peer", "sb3_dqn_peer", "sb3_replay_peer", "sb3_decision_peer"):
         peer = figures[name]
         assert "error" not in peer or "vacc[bench]" in peer["error"], name
     assert "error" not in figures["training_peak_rss"]
