@@ -90,27 +90,18 @@ def sb3_decision_latency(repeats: int = 300) -> dict[str, Any]:
     does less than our decision, which also crops and stacks the received frame.
     """
     try:
-        import torch
         from stable_baselines3.dqn.policies import MultiInputPolicy
     except ImportError:
         return {"error": INSTALL_HINT}
+    from agent_client.bench.ddqn import latency, one_torch_thread
+
     obs_space, action_space = _spaces()
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         policy = MultiInputPolicy(obs_space, action_space, lambda _: 1e-4, net_arch=[], features_extractor_class=_extractor_class())
         policy.set_training_mode(False)
         rng = np.random.default_rng(0)
         obs = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32)}
-        times = []
-        for i in range(repeats + 20):
-            t0 = time.perf_counter()
-            policy.predict(obs, deterministic=True)
-            if i >= 20:  # warm-up
-                times.append(time.perf_counter() - t0)
-    finally:
-        torch.set_num_threads(threads)
-    return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
+        return latency(lambda: policy.predict(obs, deterministic=True), repeats)
 
 
 def _spaces() -> tuple[Any, Any]:

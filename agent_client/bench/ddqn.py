@@ -17,6 +17,8 @@ import json
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -29,26 +31,41 @@ from agent_client.rl.network import QNetwork
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
 
-__all__ = ["decision_latency", "training_rate", "replay_bytes_per_transition", "run"]
+__all__ = ["decision_latency", "training_rate", "replay_bytes_per_transition", "run", "latency", "one_torch_thread"]
+
+WARMUP = 20  # untimed calls before a latency's repeats
+
+
+@contextmanager
+def one_torch_thread() -> Iterator[None]:
+    """Run torch on one thread inside, restoring the thread count after."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def latency(call: Callable[[], object], repeats: int) -> dict[str, float]:
+    """Median and p90 [s] of ``repeats`` wall-clock calls, after :data:`WARMUP` untimed ones."""
+    for _ in range(WARMUP):
+        call()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
 
 
 def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str, float]:
     """Median and p90 [s] from a received frame to the chosen action, one CPU thread."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         ctl = DDQNController((q if q is not None else QNetwork()).cpu(), Config())
         image = np.random.default_rng(0).integers(0, 256, (200, 200), dtype=np.uint8)
         obs = {"image": image.tobytes(), "image_shape": [200, 200, 1], "v_host": 30.0}
-        times = []
-        for i in range(repeats + 20):
-            t0 = time.perf_counter()
-            ctl(obs)
-            if i >= 20:  # warm-up
-                times.append(time.perf_counter() - t0)
-        return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
-    finally:
-        torch.set_num_threads(threads)
+        return latency(lambda: ctl(obs), repeats)
 
 
 def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule) -> dict[str, float]:
@@ -84,13 +101,7 @@ def sample_latency(capacity: int = 100_000, repeats: int = 300) -> dict[str, flo
     """Median and p90 [s] of sampling a batch of 32 with 5-step returns from a full memory."""
     rng = np.random.default_rng(0)
     memory = _filled_memory(capacity, rng)
-    times = []
-    for i in range(repeats + 20):
-        t0 = time.perf_counter()
-        memory.sample(32, rng, 5, 0.99)
-        if i >= 20:
-            times.append(time.perf_counter() - t0)
-    return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90)), "capacity": capacity}
+    return {**latency(lambda: memory.sample(32, rng, 5, 0.99), repeats), "capacity": capacity}
 
 
 def update_cost(repeats: int = 30, memory: Any = None, torch_threads: int = Config.torch_threads) -> dict[str, float]:
