@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import datetime
+import importlib.metadata
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,6 +35,7 @@ from agent_client.controllers.keyboard import (
 from agent_client.drive import COLD_START_HELP, drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import local_server
+from agent_client.runlog import COLUMNS, file_sha256, write_card
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
 from protocol.auth import load_key
@@ -105,6 +109,33 @@ def check_start(host_speed: float | None, gap: float | None, set_speed: float) -
             raise click.BadParameter(str(exc), param_hint=hint) from None
 
 
+def run_card(
+    *, episode: dict[str, Any], welcome: dict[str, Any] | None, addr: tuple[str, int], spawned: bool, controller: str,
+    checkpoint: str | None, human_file: str | None, faults: FaultConfig | None, server_faults: str | None, columns: tuple[str, ...],
+) -> dict[str, Any]:
+    """The card of a ``vacc drive`` run (:func:`agent_client.runlog.write_card`), its end still open."""
+    w = welcome or {}
+    trace = episode["trajectory"] if episode["trajectory"] not in TRAJECTORIES else None
+    return {
+        "written": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "vacc": importlib.metadata.version("vacc"),
+        "episode": {**episode, "trace_sha256": file_sha256(trace) if trace else None},
+        "road": {
+            "traffic": w.get("traffic"),  # None: a server older than protocol 5 does not say
+            "seed_salt": w.get("seed_salt"), "server": w.get("server"), "address": f"{addr[0]}:{addr[1]}", "spawned": spawned,
+            "protocol": w.get("version"), "control_period": w.get("control_period"), "physics_dt": w.get("physics_dt"),
+        },
+        "controller": {
+            "name": controller,
+            "checkpoint": checkpoint, "checkpoint_sha256": file_sha256(checkpoint) if checkpoint else None,
+            "human_file": human_file, "human_file_sha256": file_sha256(human_file) if human_file else None,
+        },
+        "faults": {"client": dataclasses.asdict(faults) if faults else None, "server": server_faults},
+        "columns": list(COLUMNS + columns),
+        "end": None,
+    }  # fmt: skip
+
+
 @contextlib.contextmanager
 def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str, int]]:
     """The given server, or a local server process spawned (and reaped) for the block."""
@@ -172,7 +203,10 @@ def drive(
 
     The log has one row per control step: t,frame,v_host,v_lead,gap,accel,force,
     collision,a_lead (SI units), then gap_est for a DDQN model with a gap head
-    (vacc train --aux-gap). Exits non-zero if the server is lost.
+    (vacc train --aux-gap). Beside it, LOG's card (run.csv -> run.card.json) says
+    what the CSV cannot: the episode asked for, the road (the server's traffic and
+    seed salt), the controller and its checkpoint's SHA-256, and how the run ended.
+    Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
     if server is not None and traffic != TRAFFIC_PER_LANE:
@@ -216,6 +250,7 @@ def drive(
             raise click.BadParameter(str(exc), param_hint="--key-file") from None
         server_args += ["--key-file", key_file]
     image_format, image_size = ("rgb", LIVE_IMAGE) if live else camera(policy)  # a DDQN checkpoint's zoom decides
+    card: dict[str, Any] | None = None
     try:
         with (
             server_address(server, *server_args) as addr,
@@ -229,6 +264,13 @@ def drive(
                 window = DrivingWindow(scale=window_scale)
                 stack.callback(window.close)
                 policy = KeyboardController(period, window, joystick=None if joystick < 0 else joystick, joystick_map=joystick_map)
+            card = run_card(
+                episode={"scenario": scenario, "trajectory": trajectory, "seed": seed, **start, "duration": duration,
+                         "preroll": 0 if cold_start else getattr(policy, "history_steps", 0)},
+                welcome=session.welcome, addr=addr, spawned=server is None, controller=controller, checkpoint=checkpoint,
+                human_file=human_file, faults=faults, server_faults=server_faults, columns=getattr(policy, "log_columns", ()),
+            )  # fmt: skip
+            write_card(log_path, card)  # before the first row: an interrupted run keeps its card
             if record_path is not None:
                 header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration, extra=start_extra(**start))
                 recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
@@ -239,9 +281,12 @@ def drive(
                 preroll=0 if cold_start else None,
             )  # fmt: skip
     except (FatalSessionError, SessionError) as exc:
+        if card is not None:
+            write_card(log_path, {**card, "end": {"error": str(exc)}})
         raise click.ClickException(f"{exc} (log so far: {log_path})") from None
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
+    write_card(log_path, {**card, "end": dataclasses.asdict(summary)})
     if not quiet:
         if record_path is not None:
             click.echo(f"human-file -> {record_path}")

@@ -35,9 +35,10 @@ __all__ = [
 #    scenarios as trajectory names (protocol/scenarios.py).
 # 3: welcome gained seed_salt.
 # 4: reset gained preroll: the camera's frames before the controller engages.
-PROTOCOL_VERSION = 4
-# A server also speaks 2 and 3 (cheap: only the welcome and the reset differ), so older clients keep working.
-SUPPORTED_VERSIONS = (2, 3, 4)
+# 5: welcome gained traffic: the road a client drives on, for its run logs.
+PROTOCOL_VERSION = 5
+# A server also speaks 2 to 4 (cheap: only the welcome and the reset differ), so older clients keep working.
+SUPPORTED_VERSIONS = (2, 3, 4, 5)
 
 # Image formats a client may ask for in the handshake.
 IMAGE_FORMATS = ("none", "rgb", "gray")
@@ -106,6 +107,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "max_datagram": _INT,  # [bytes] what the server will send
         "session_timeout": _FLOAT,  # [s] idle time after which the session is freed
         "seed_salt": _INT,  # the server's --seed as mixed into every episode seed (version 3)
+        "traffic": _INT,  # cars in each adjacent lane, twice as many oncoming: the server's --traffic (version 5)
     },
     # client -> server: start episode `episode` (answered with obs frame 0, or -preroll)
     "reset": {
@@ -166,7 +168,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
 MESSAGE_TYPES = frozenset(SCHEMAS)
 
 # (type, field) -> the version that added it; older versions' messages lack it.
-FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4}
+FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4, ("welcome", "traffic"): 5}
 
 
 def schema(kind: str, version: int = PROTOCOL_VERSION) -> dict[str, tuple[str, ...]] | None:

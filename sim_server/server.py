@@ -287,6 +287,7 @@ class SimServer:
             "max_datagram": max_datagram,
             "session_timeout": self.config.session_timeout,
             "seed_salt": self.world.salt,
+            "traffic": cfg.traffic_per_lane,
         }
         self.endpoint.max_datagram = max_datagram
         datagrams = self.endpoint.pack(m.for_version(welcome, version), version=version)

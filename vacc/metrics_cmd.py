@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import click
 
+from agent_client.runlog import read_card
 from energy import RunLogError, evaluate_run
 from energy.metrics import D_SAFE_M, SETTLE_S, TIME_GAP_S, VEHICLE_NAMES, Metrics
 
@@ -23,6 +25,17 @@ def json_safe(result: Metrics) -> Metrics:
     return {
         k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in result.items()
     }
+
+
+def card_line(card: dict[str, Any]) -> str:
+    """One line of what a run card says: the episode, the road and who drove."""
+    ep, road, ctl = card.get("episode") or {}, card.get("road") or {}, card.get("controller") or {}
+    traffic = road.get("traffic")
+    who = str(ctl.get("name", "?")) + (f" ({ctl['checkpoint']})" if ctl.get("checkpoint") else "")
+    return (
+        f"run: {ep.get('scenario', '?')}/{ep.get('trajectory', '?')} seed {ep.get('seed', '?')}, set speed {ep.get('set_speed', '?')} m/s, "
+        f"traffic {'unknown' if traffic is None else traffic} a lane, {who}"
+    )
 
 
 def _fmt(value: float | int | str | None) -> str:
@@ -81,9 +94,16 @@ def metrics(
         )
     except RunLogError as e:
         raise click.ClickException(str(e)) from None
+    try:
+        card = read_card(run_csv)
+    except ValueError as e:  # the metrics stand without it
+        click.echo(f"warning: {e}; the run's card is left out", err=True)
+        card = None
     if as_json:
         click.echo(json.dumps(json_safe(result), indent=2, allow_nan=False))
         return
+    if card is not None:
+        click.echo(card_line(card))
     width = max(len(k) for k in result)
     click.echo(f"{'metric':<{width}}  value")
     for key, value in result.items():

@@ -57,8 +57,8 @@ REQUIRED_KEYS = ("scenario", "trajectory", "seed", "control_period", "protocol")
 PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not strings
 # Protocol 2 only added reset and obs fields (initial conditions, set speed), so a
 # protocol-1 recording replays the same run below the default 33.5 m/s set speed;
-# 3 and 4 changed only the handshake and the pre-roll, which a recording starts after.
-REPLAYABLE_PROTOCOLS = (1, 2, 3, PROTOCOL_VERSION)
+# 3 to 5 changed only the handshake and the pre-roll, which a recording starts after.
+REPLAYABLE_PROTOCOLS = (1, 2, 3, 4, PROTOCOL_VERSION)
 START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
 
 

@@ -17,12 +17,13 @@ from hypothesis import strategies as st
 
 from protocol import codec
 from protocol import messages as m
+from protocol.constants import TRAFFIC_PER_LANE
 from protocol.fragment import HEADER_BYTES, HELLO_BYTES
 from protocol.messages import ErrorCode
 from protocol.scenarios import TRAJECTORIES
 from protocol.transport import Endpoint, Received
 from sim_server.server import ServerConfig, SimServer
-from sim_server.world import World
+from sim_server.world import World, WorldConfig
 
 TOKEN_FIELDS = ("reset", "step", "heartbeat", "close")
 
@@ -30,8 +31,8 @@ TOKEN_FIELDS = ("reset", "step", "heartbeat", "close")
 class Harness:
     """A server object and one client socket; requests are handed to ``handle``."""
 
-    def __init__(self, seed: int = 0):
-        self.server = SimServer(ServerConfig(port=0, seed=seed))
+    def __init__(self, seed: int = 0, traffic: int = TRAFFIC_PER_LANE):
+        self.server = SimServer(ServerConfig(port=0, seed=seed, world=WorldConfig(traffic_per_lane=traffic)))
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.addr = self.sock.getsockname()
@@ -91,6 +92,20 @@ def test_welcome_carries_the_salt_as_mixed(seed, salt):
         assert harness.hello()["seed_salt"] == salt
     finally:
         harness.close()
+
+
+@pytest.mark.parametrize("traffic", [0, TRAFFIC_PER_LANE, 10])
+def test_welcome_carries_the_servers_traffic(traffic):
+    harness = Harness(traffic=traffic)
+    try:
+        assert harness.hello()["traffic"] == traffic
+    finally:
+        harness.close()
+
+
+def test_a_version_4_welcome_has_no_traffic(h):
+    welcome = h.hello(version=4)
+    assert welcome["version"] == 4 and "traffic" not in welcome and "seed_salt" in welcome
 
 
 def test_the_salt_is_mixed_into_every_episode_seed():
