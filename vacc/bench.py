@@ -323,7 +323,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         from vacc import bench_sb3
 
         lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)
-        rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}}
+        rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}, "forward_ms": lat["forward_median_s"] * 1e3}
         peer_lat = bench_sb3.sb3_decision_latency(repeats=300 if quick else 2000)
         rows["sb3_decision_peer"] = peer_lat if "error" in peer_lat else {"ms": {"median": peer_lat["median_s"] * 1e3, "p90": peer_lat["p90_s"] * 1e3}}
         sample = ddqn_bench.sample_latency(capacity=20_000 if quick else 100_000)
@@ -399,6 +399,7 @@ def format_table(result: dict[str, Any]) -> str:
     d = f["decision_latency"]["ms"]
     frac = f["decision_latency"].get("fraction_of_sb3")
     lines.append(f"{'decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 0.5 ms (paper 3.58 ms GPU)" + (f" ({frac:.2f}x SB3)" if frac else ""))
+    lines.append(f"{'  of which the forward alone':34} {f['decision_latency']['forward_ms']:>9.3f} ms {'':>22}  batch 1, the same stack")
     peer = f["sb3_decision_peer"]
     lines.append(f"{'SB3 predict, same net, stack given':34} " + (peer["error"] if "error" in peer else f"{peer['ms']['median']:>9.3f} ms {'p90 ' + format(peer['ms']['p90'], '.3f'):>22}  (peer)"))
     d = f["replay_sample"]["ms"]

@@ -27,7 +27,7 @@ import torch
 from agent_client.controllers.ddqn import DDQNController
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config
-from agent_client.rl.network import QNetwork
+from agent_client.rl.network import QNetwork, batch_of_one
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
 
@@ -60,12 +60,19 @@ def latency(call: Callable[[], object], repeats: int) -> dict[str, float]:
 
 
 def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str, float]:
-    """Median and p90 [s] from a received frame to the chosen action, one CPU thread."""
+    """Median and p90 [s] from a received frame to the chosen action, one CPU thread; and
+    ``forward_median_s``, the network's batch-1 forward alone on the same stack (what is
+    left for decoding, preprocessing, stacking and the decision rule is the difference)."""
     with one_torch_thread():
         ctl = DDQNController((q if q is not None else QNetwork()).cpu(), Config())
         image = np.random.default_rng(0).integers(0, 256, (200, 200), dtype=np.uint8)
         obs = {"image": image.tobytes(), "image_shape": [200, 200, 1], "v_host": 30.0}
-        return latency(lambda: ctl(obs), repeats)
+        whole = latency(lambda: ctl(obs), repeats)
+        stacked = ctl.warm(obs)
+        inputs = batch_of_one(ctl.q, stacked["frames"].clone(), stacked["speeds"], stacked.get("controls"))
+        with torch.inference_mode():
+            forward = latency(lambda: ctl.q(*inputs), repeats)
+        return {**whole, "forward_median_s": forward["median_s"]}
 
 
 def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule) -> dict[str, float]:

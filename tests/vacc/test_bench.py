@@ -29,6 +29,7 @@ def test_quick_bench_reports_every_figure(tmp_path):
         assert key in figures, key
     # each training row measures the schedule its label names (the serial row once ran the parallel one)
     assert (figures["ddqn_training"]["schedule"], figures["ddqn_training_parallel"]["schedule"]) == ("serial", "parallel")
+    assert 0 < figures["decision_latency"]["forward_ms"] < 2 * figures["decision_latency"]["ms"]["median"]  # a part of the decision, measured apart
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
