@@ -121,7 +121,7 @@ def run_card(
         "vacc": importlib.metadata.version("vacc"),
         "episode": {**episode, "trace_sha256": file_sha256(trace) if trace else None},
         "road": {
-            "traffic": w.get("traffic"),  # None: a server older than protocol 5 does not say
+            "traffic": w.get("traffic"), "sun_elevation": w.get("sun_elevation"),  # None: a server older than protocol 5 does not say
             "seed_salt": w.get("seed_salt"), "server": w.get("server"), "address": f"{addr[0]}:{addr[1]}", "spawned": spawned,
             "protocol": w.get("version"), "control_period": w.get("control_period"), "physics_dt": w.get("physics_dt"),
         },

@@ -34,3 +34,5 @@ CAMERA_SIZE = (400, 400)  # [px] (width, height) of the full front camera
 MIN_GAP = 2.0  # [m] the smallest gap a safe run may reach: the safety suite's floor and best.pt's
 TRAFFIC_PER_LANE = 3  # cars in each adjacent lane (twice as many oncoming): the server's default --traffic
 TRAFFIC_PER_LANE_RANGE = (0, 10)  # 10 a lane is one car every 35 m of the 350 m traffic window
+SUN_ELEVATION = (0.35, 1.2)  # [rad] the range the sun's height is drawn from per episode: the server's default --sun-elevation
+SUN_ELEVATION_LIMITS = (0.05, 1.5)  # [rad] any --sun-elevation range lies within these (a sun on the horizon casts endless shadows)

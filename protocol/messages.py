@@ -35,7 +35,7 @@ __all__ = [
 #    scenarios as trajectory names (protocol/scenarios.py).
 # 3: welcome gained seed_salt.
 # 4: reset gained preroll: the camera's frames before the controller engages.
-# 5: welcome gained traffic: the road a client drives on, for its run logs.
+# 5: welcome gained traffic and sun_elevation: the road a client drives on, for its run logs.
 PROTOCOL_VERSION = 5
 # A server also speaks 2 to 4 (cheap: only the welcome and the reset differ), so older clients keep working.
 SUPPORTED_VERSIONS = (2, 3, 4, 5)
@@ -78,6 +78,7 @@ _STR = ("str",)
 _BIN = ("bin",)
 _OPT_FLOAT = ("float", "nil")
 _OPT_INT = ("int", "nil")
+_ARRAY = ("array",)
 _OPT_ARRAY = ("array", "nil")
 _OPT_BIN = ("bin", "nil")
 
@@ -108,6 +109,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "session_timeout": _FLOAT,  # [s] idle time after which the session is freed
         "seed_salt": _INT,  # the server's --seed as mixed into every episode seed (version 3)
         "traffic": _INT,  # cars in each adjacent lane, twice as many oncoming: the server's --traffic (version 5)
+        "sun_elevation": _ARRAY,  # [rad] [low, high]: the range of each episode's sun height, the server's --sun-elevation (version 5)
     },
     # client -> server: start episode `episode` (answered with obs frame 0, or -preroll)
     "reset": {
@@ -168,7 +170,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
 MESSAGE_TYPES = frozenset(SCHEMAS)
 
 # (type, field) -> the version that added it; older versions' messages lack it.
-FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4, ("welcome", "traffic"): 5}
+FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4, ("welcome", "traffic"): 5, ("welcome", "sun_elevation"): 5}
 
 
 def schema(kind: str, version: int = PROTOCOL_VERSION) -> dict[str, tuple[str, ...]] | None:

@@ -23,9 +23,10 @@ import math
 from dataclasses import dataclass
 
 from protocol.codec import MAX_ARRAY_LEN
-from protocol.constants import A_MIN
+from protocol.constants import A_MIN, SUN_ELEVATION_LIMITS
 
 __all__ = [
+    "check_sun_elevation",
     "SCENARIOS",
     "TEST_TRAJECTORIES",
     "RANDOM",
@@ -263,6 +264,17 @@ def check_trajectory(name: str) -> str:
     if name not in TRAJECTORIES:
         raise ValueError(f"unknown trajectory {name!r}; expected one of {', '.join(TRAJECTORIES)} (or a CSV trace)")
     return name
+
+
+def check_sun_elevation(bounds: tuple[float, ...]) -> str | None:
+    """What is wrong with a range [rad] to draw the sun's height from, or None: two numbers,
+    low <= high, within :data:`~protocol.constants.SUN_ELEVATION_LIMITS`."""
+    lo_limit, hi_limit = SUN_ELEVATION_LIMITS
+    if len(bounds) != 2 or not all(math.isfinite(b) for b in bounds):
+        return f"must be two numbers LOW,HIGH [rad], got {','.join(map(str, bounds))}"
+    if not lo_limit <= bounds[0] <= bounds[1] <= hi_limit:
+        return f"must have {lo_limit:g} <= LOW <= HIGH <= {hi_limit:g} rad, got {bounds[0]:g},{bounds[1]:g}"
+    return None
 
 
 def check_initial(*, host_speed: float | None, gap: float | None, set_speed: float | None, preroll: int = 0) -> None:

@@ -288,6 +288,7 @@ class SimServer:
             "session_timeout": self.config.session_timeout,
             "seed_salt": self.world.salt,
             "traffic": cfg.traffic_per_lane,
+            "sun_elevation": list(cfg.sun_elevation),
         }
         self.endpoint.max_datagram = max_datagram
         datagrams = self.endpoint.pack(m.for_version(welcome, version), version=version)

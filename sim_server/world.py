@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     GAP_LIMIT,
@@ -33,6 +33,7 @@ from protocol.scenarios import (
     SCENARIOS,
     TRACE,
     check_initial,
+    check_sun_elevation,
 )
 from sim_server import scenarios as lead_scenarios
 from sim_server import trajectory as traj
@@ -59,11 +60,14 @@ class WorldConfig:
     substeps: int = 5  # physics steps per control step: 0.1 s control period (10 Hz)
     traffic_per_lane: int = TRAFFIC_PER_LANE  # cars in each adjacent lane; twice as many oncoming
     randomize_light: bool = True  # draw the sun per episode for random trajectories and lead scenarios
+    sun_elevation: tuple[float, float] = SUN_ELEVATION  # [rad] the range of that draw's height
 
     def __post_init__(self) -> None:
         lo, hi = TRAFFIC_PER_LANE_RANGE
         if not lo <= self.traffic_per_lane <= hi:
             raise ValueError(f"traffic_per_lane must be in [{lo}, {hi}], got {self.traffic_per_lane}")
+        if (why := check_sun_elevation(self.sun_elevation)) is not None:
+            raise ValueError(f"sun_elevation {why}")
 
     @property
     def control_period(self) -> float:
@@ -182,7 +186,7 @@ class World:
         self.last_frame = steps // cfg.substeps
         self.scenario, self.seed = scenario, seed
         if cfg.randomize_light and (trajectory == "random" or trajectory in LEAD_SCENARIOS):
-            self.light = (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(0.35, 1.2)))
+            self.light = (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(*cfg.sun_elevation)))
         else:
             self.light = (0.6, 0.8)
 

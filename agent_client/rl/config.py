@@ -16,13 +16,14 @@ from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.rl.evaluation import eval_episode
-from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     LEAD_SCENARIOS,
     RANDOM,
     SET_SPEED_RANGE,
     TEST_TRAJECTORIES,
+    check_sun_elevation,
 )
 
 __all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
@@ -68,6 +69,7 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
             (cfg.preroll, "preroll", "--preroll", "starts its episodes cold"),
             (cfg.action != "levels", "action", f"--action {cfg.action}", "stores no controls"),
             (cfg.train_traffic != TRAFFIC_PER_LANE, "train_traffic", f"--train-traffic {cfg.train_traffic}", "spawns servers with the default traffic"),
+            (tuple(cfg.train_sun_elevation) != SUN_ELEVATION, "train_sun_elevation", "--train-sun-elevation", "spawns servers with the default sun"),
             (tuple(cfg.train_trajectories) != (RANDOM,), "train_trajectories", f"--train-trajectories {','.join(cfg.train_trajectories)}", "drives random leads only"),
         )
         if wanted
@@ -112,6 +114,11 @@ class Config:
     training server's --traffic. Neighbours and their shadows are what a camera student may
     mistake for a threat, and a teacher's labels ignore them; more of them teach it to. The
     evaluation episodes (best.pt) keep the server's default, as vacc drive and vacc evaluate."""
+    train_sun_elevation: tuple[float, ...] = SUN_ELEVATION
+    """Range [rad] the sun's height is drawn from in training episodes: the spawned training
+    server's --sun-elevation (LOW,HIGH). A low sun from the side throws the shadows of trees
+    and buildings across the lane as dark bands, which a camera student may read as a car;
+    a lower range shows it more of them. Evaluations keep the server's default."""
     total_steps: int = 200_000
     """Environment steps (control periods of 0.1 s) to train for, in total."""
     seed: int = 1
@@ -314,6 +321,8 @@ class Config:
             raise bad("crash_reward", f"must be in [{CRASH_REWARD_RANGE[0]:g}, {CRASH_REWARD_RANGE[1]:g}], got {self.crash_reward}")
         if not TRAFFIC_PER_LANE_RANGE[0] <= self.train_traffic <= TRAFFIC_PER_LANE_RANGE[1]:
             raise bad("train_traffic", f"must be in [{TRAFFIC_PER_LANE_RANGE[0]}, {TRAFFIC_PER_LANE_RANGE[1]}] cars a lane, got {self.train_traffic}")
+        if (why := check_sun_elevation(tuple(self.train_sun_elevation))) is not None:
+            raise bad("train_sun_elevation", why)
         if self.teacher not in TEACHERS:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
         if not self.teacher_brake >= 0.0:
@@ -421,7 +430,7 @@ def config_from(d: dict[str, Any], path: Any) -> Config:
     """
     names = {f.name for f in dataclasses.fields(Config)}
     known = {k: v for k, v in d.items() if k in names}
-    for name in ("eval_trajectories", "train_trajectories", "eco_weights"):
+    for name in ("eval_trajectories", "train_trajectories", "eco_weights", "train_sun_elevation"):
         if name in known:
             known[name] = tuple(known[name])
     for name, value in LEGACY_VALUES.items():  # a config saved before the setting existed

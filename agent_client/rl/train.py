@@ -106,7 +106,7 @@ def train(
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,
-            server_args=(*learner.server_args, "--traffic", str(cfg.train_traffic)),  # evaluations keep the default
+            server_args=(*learner.server_args, "--traffic", str(cfg.train_traffic), "--sun-elevation", ",".join(map(str, cfg.train_sun_elevation))),  # evaluations keep the defaults
             set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward, preroll=cfg.preroll,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)

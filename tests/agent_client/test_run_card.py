@@ -43,12 +43,13 @@ def test_a_spawned_servers_road_and_a_traces_digest_are_on_the_card(tmp_path):
 def test_a_given_servers_traffic_comes_from_its_welcome(tmp_path):
     checkpoint = "models/ice-eco.pt"
     log = tmp_path / "run.csv"
-    with local_server("--traffic", "7") as (host, port):
+    with local_server("--traffic", "7", "--sun-elevation", "0.4,0.5") as (host, port):
         result = _drive("--controller", "ddqn", "--checkpoint", checkpoint, "--server", f"{host}:{port}", "--duration", "1", "--log", str(log))
     assert result.exit_code == 0, result.output
     card = read_card(log)
     assert card is not None
     assert card["road"]["traffic"] == 7 and card["road"]["spawned"] is False and card["road"]["address"] == f"{host}:{port}"
+    assert card["road"]["sun_elevation"] == [0.4, 0.5]
     assert card["controller"]["checkpoint_sha256"] == file_sha256(checkpoint)
     assert card["episode"]["preroll"] == 14  # the stack's span: 7 gaps of 2 control steps
     assert card["end"]["steps"] == 10

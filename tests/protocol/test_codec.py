@@ -10,7 +10,7 @@ SESSION = b"\x01" * 16
 
 EXAMPLES = {
     "hello": {"version": 1, "nonce": b"12345678", "client": "t", "image_format": "gray", "image_width": 200, "image_height": 200, "max_datagram": 65000},
-    "welcome": {"version": 1, "nonce": b"12345678", "session": SESSION, "server": "s", "physics_dt": 0.02, "control_period": 0.1, "image_format": "none", "image_width": 0, "image_height": 0, "max_datagram": 1400, "session_timeout": 10.0, "seed_salt": 0, "traffic": 3},
+    "welcome": {"version": 1, "nonce": b"12345678", "session": SESSION, "server": "s", "physics_dt": 0.02, "control_period": 0.1, "image_format": "none", "image_width": 0, "image_height": 0, "max_datagram": 1400, "session_timeout": 10.0, "seed_salt": 0, "traffic": 3, "sun_elevation": [0.35, 1.2]},
     "reset": {"session": SESSION, "episode": 0, "scenario": "ice", "seed": 3, "trajectory": "test-1", "trace_t": None, "trace_v": None, "duration": None, "host_speed": None, "gap": 30.0, "set_speed": 33.5, "preroll": 14},
     "step": {"session": SESSION, "episode": 0, "frame": 7, "action": -0.3},
     "obs": {"episode": 0, "frame": 8, "t": 0.8, "v_host": 30.0, "v_lead": 29.5, "gap": 50.2, "accel": 0.1, "a_lead": -0.2, "force": -0.3, "collision": False, "terminated": False, "truncated": False, "reason": "", "set_speed": 33.5, "image": b"\x00" * 12, "image_shape": [2, 2, 3]},

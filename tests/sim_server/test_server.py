@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from protocol import codec
 from protocol import messages as m
-from protocol.constants import TRAFFIC_PER_LANE
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE
 from protocol.fragment import HEADER_BYTES, HELLO_BYTES
 from protocol.messages import ErrorCode
 from protocol.scenarios import TRAJECTORIES
@@ -105,7 +105,11 @@ def test_welcome_carries_the_servers_traffic(traffic):
 
 def test_a_version_4_welcome_has_no_traffic(h):
     welcome = h.hello(version=4)
-    assert welcome["version"] == 4 and "traffic" not in welcome and "seed_salt" in welcome
+    assert welcome["version"] == 4 and "traffic" not in welcome and "sun_elevation" not in welcome and "seed_salt" in welcome
+
+
+def test_welcome_carries_the_sun_elevation_range(h):
+    assert h.hello()["sun_elevation"] == list(SUN_ELEVATION)
 
 
 def test_the_salt_is_mixed_into_every_episode_seed():

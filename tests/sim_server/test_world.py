@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import MAX_PREROLL, PREROLL_MIN_GAP
 from sim_server import trajectory as T
 from sim_server.errors import InitialConditionError, ScenarioError, TrajectoryError
@@ -138,6 +138,29 @@ def test_traffic_per_lane_sets_the_neighbours_and_nothing_else(n):
 def test_traffic_per_lane_out_of_range_is_refused(n):
     with pytest.raises(ValueError, match=r"traffic_per_lane must be in \[0, 10\], got"):
         WorldConfig(traffic_per_lane=n)
+
+
+def test_sun_elevation_narrows_the_suns_height_and_changes_nothing_else():
+    # The same seeds and actions drive the same lead and host under a lower sun, and the
+    # default range draws the very suns it always drew.
+    actions = np.random.default_rng(2).uniform(-1, 1, 100)
+    low, default = World(WorldConfig(sun_elevation=(0.35, 0.5))), World()
+    assert World(WorldConfig(sun_elevation=SUN_ELEVATION)).reset("ice", 227, "catch-up") == default.reset("ice", 227, "catch-up")
+    assert default.light == pytest.approx((1.1, 0.35), abs=0.01)  # seed 227: a low sun from the right, as drawn since the start
+    heights = []
+    for seed in range(40):
+        assert run(low, actions, scenario="ice", seed=seed, trajectory="constant") == run(default, actions, scenario="ice", seed=seed, trajectory="constant")
+        assert low.light[0] == default.light[0]  # the azimuth is the same draw
+        heights.append(low.light[1])
+    assert 0.35 <= min(heights) and max(heights) <= 0.5 and max(heights) - min(heights) > 0.1
+    low.reset("ice", 0, "test-1")
+    assert low.light == (0.6, 0.8)  # the test trajectories keep their fixed sun
+
+
+@pytest.mark.parametrize("bounds", [(0.5, 0.4), (0.0, 0.5), (0.4, 1.6), (0.4,), (0.3, float("nan"))])
+def test_a_bad_sun_elevation_is_refused(bounds):
+    with pytest.raises(ValueError, match="sun_elevation must"):
+        WorldConfig(sun_elevation=bounds)
 
 
 @pytest.mark.parametrize("scenario", ["ice", "ev"])

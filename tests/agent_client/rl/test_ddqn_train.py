@@ -333,13 +333,17 @@ def test_train_traffic_goes_to_the_training_server_only(tmp_path):
     # The training stream sees the busier road; best.pt is chosen on the default one, as
     # vacc drive and vacc evaluate drive it.
     args = ["--steps", "40", "--learning-starts", "20", "--batch-size", "8", "--buffer-size", "200", "--episode-seconds", "2",
-            "--eval-trajectories", "stopped:1", "--eval-seconds", "1", "--eval-every", "0", "--train-traffic", "7"]  # fmt: skip
+            "--eval-trajectories", "stopped:1", "--eval-seconds", "1", "--eval-every", "0", "--train-traffic", "7", "--train-sun-elevation", "0.35,0.6"]  # fmt: skip
     cmd = [sys.executable, "-m", "vacc", "-vv", "train", "--reward", "gap", *args, "--out", str(tmp_path / "run")]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     started = [line for line in result.stderr.splitlines() if "starting a simulator server: " in line]
-    assert len(started) == 2 and sum("--traffic 7" in line for line in started) == 1, started
-    assert json.loads((tmp_path / "run" / "config.json").read_text())["train_traffic"] == 7
+    assert len(started) == 2 and sum("--traffic 7 --sun-elevation 0.35,0.6" in line for line in started) == 1, started
+    assert sum("--sun-elevation" in line for line in started) == 1, started  # the evaluation server: the default sun
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["train_traffic"] == 7 and config["train_sun_elevation"] == [0.35, 0.6]
     bad = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--train-traffic", "11", "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "--train-traffic" in bad.output and "[0, 10]" in bad.output, bad.output
+    bad = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--train-sun-elevation", "0.6,0.4", "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "--train-sun-elevation" in bad.output and "LOW <= HIGH" in bad.output, bad.output
     assert not (tmp_path / "bad").exists()

@@ -173,6 +173,7 @@ def test_servers_2_trains_without_ray_and_ray_flag_says_how_to_install(tmp_path,
         (["--action", "ramp", "--teacher", "acc-55"], "--teacher acc-55 and --action ramp need the single-stream trainer"),
         (["--train-trajectories", "random,closing"], "--train-trajectories random,closing needs the single-stream trainer"),
         (["--train-traffic", "8"], "--train-traffic 8 needs the single-stream trainer"),
+        (["--train-sun-elevation", "0.35,0.6"], "--train-sun-elevation needs the single-stream trainer"),
     ],
 )
 def test_ray_with_one_server_refuses_what_only_the_single_stream_trainer_does(tmp_path, options, words):
