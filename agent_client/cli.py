@@ -34,15 +34,21 @@ from agent_client.controllers.keyboard import (
 )
 from agent_client.drive import COLD_START_HELP, drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
-from agent_client.launcher import local_server
+from agent_client.launcher import DEFAULT_ROAD, Road, local_server
 from agent_client.runlog import COLUMNS, file_sha256, write_card
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
 from protocol.auth import load_key
-from protocol.constants import CAMERA_SIZE, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import CAMERA_SIZE, SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
-from protocol.scenarios import DEFAULT_SET_SPEED, SCENARIOS, TRAJECTORIES, check_initial
+from protocol.scenarios import (
+    DEFAULT_SET_SPEED,
+    SCENARIOS,
+    TRAJECTORIES,
+    check_initial,
+    parse_sun_elevation,
+)
 
 LIVE_IMAGE = CAMERA_SIZE  # [px] the live window asks for the full camera (shown scaled up)
 
@@ -57,6 +63,14 @@ def parse_hostport(value: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise click.BadParameter(f"{value!r} is not HOST:PORT")
     return host.strip("[]"), int(port)
+
+
+def sun_elevation_option(ctx: click.Context, param: click.Parameter, value: str) -> tuple[float, float]:
+    """Click callback: ``--sun-elevation LOW,HIGH`` [rad] as a checked range, or one line naming the option."""
+    try:
+        return parse_sun_elevation(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
 
 
 def parse_faults(ctx: click.Context, param: click.Parameter, value: str | None) -> FaultConfig | None:
@@ -162,6 +176,7 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--duration", default=None, type=click.FloatRange(min=0.1), help="Stop after this many simulated seconds.")
 @click.option("--faults", callback=parse_faults, default=None, help="Inject faults on the client's sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05'.")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of the spawned server; with --server, start it with vacc serve --traffic.")
+@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, callback=sun_elevation_option, metavar="LOW,HIGH", help="Range [rad] the spawned server draws the sun's height from (random leads and lead scenarios); with --server, start it with vacc serve --sun-elevation.")
 @click.option("--server-faults", default=None, help="Faults for the spawned server's sends (same syntax).")
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key of the server (vacc serve --key-file): every datagram carries a MAC.")
@@ -188,6 +203,7 @@ def drive(
     duration: float | None,
     faults: FaultConfig | None,
     traffic: int,
+    sun_elevation: tuple[float, float],
     server_faults: str | None,
     give_up: float,
     key_file: str | None,
@@ -209,8 +225,10 @@ def drive(
     Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
-    if server is not None and traffic != TRAFFIC_PER_LANE:
-        raise click.UsageError(f"--traffic {traffic} sets a spawned server's traffic; start the --server one with vacc serve --traffic {traffic}")
+    road = Road(traffic, sun_elevation)
+    if server is not None and road != DEFAULT_ROAD:
+        option = f"--traffic {traffic}" if traffic != TRAFFIC_PER_LANE else "--sun-elevation " + ",".join(map(str, sun_elevation))
+        raise click.UsageError(f"{option} sets a spawned server's road; start the --server one with vacc serve {option}")
     trace = load_lead(trajectory)
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
     policy: Any = None
@@ -241,7 +259,7 @@ def drive(
             raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
-    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + ["--traffic", str(traffic)]
+    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + list(road.server_args())
     key = None
     if key_file is not None:
         try:

@@ -19,11 +19,13 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from agent_client.errors import ServerLaunchError
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE
 from protocol.logs import LOG_LEVELS
 
-__all__ = ["local_server", "start_server", "reap", "READY_PREFIX", "START_TIMEOUT", "SERVER_LOG_LEVEL_ENV", "server_log_level"]
+__all__ = ["Road", "DEFAULT_ROAD", "local_server", "start_server", "reap", "READY_PREFIX", "START_TIMEOUT", "SERVER_LOG_LEVEL_ENV", "server_log_level"]
 
 READY_PREFIX = "vacc-server listening on "
 START_TIMEOUT = 30.0  # [s] a cold start imports numpy and pymunk
@@ -93,6 +95,29 @@ def reap(proc: subprocess.Popen[str]) -> None:
     if proc.stdout is not None:
         proc.stdout.close()
     log.debug("simulator server pid %d stopped (exit code %s)", proc.pid, proc.returncode)
+
+
+@dataclass(frozen=True)
+class Road:
+    """What a spawned server shows around the lead and the host (neither changes their drive):
+    its ``--traffic`` and ``--sun-elevation``."""
+
+    traffic: int = TRAFFIC_PER_LANE  # cars in each adjacent lane, twice as many oncoming
+    sun_elevation: tuple[float, float] = SUN_ELEVATION  # [rad] the range each episode's sun height is drawn from
+
+    def server_args(self) -> tuple[str, ...]:
+        """The server options that set it up."""
+        return ("--traffic", str(self.traffic), "--sun-elevation", ",".join(map(str, self.sun_elevation)))
+
+    def note(self) -> str:
+        """Words for a table's title: nothing for the default road."""
+        parts = [f"{self.traffic} cars in each adjacent lane (default {TRAFFIC_PER_LANE})"] if self.traffic != TRAFFIC_PER_LANE else []
+        if tuple(self.sun_elevation) != SUN_ELEVATION:
+            parts.append("the sun {:g}-{:g} rad high (default {:g}-{:g})".format(*self.sun_elevation, *SUN_ELEVATION))
+        return "".join(", " + p for p in parts)
+
+
+DEFAULT_ROAD = Road()  # the servers' defaults
 
 
 @contextlib.contextmanager

@@ -27,6 +27,7 @@ from protocol.constants import A_MIN, SUN_ELEVATION_LIMITS
 
 __all__ = [
     "check_sun_elevation",
+    "parse_sun_elevation",
     "SCENARIOS",
     "TEST_TRAJECTORIES",
     "RANDOM",
@@ -275,6 +276,21 @@ def check_sun_elevation(bounds: tuple[float, ...]) -> str | None:
     if not lo_limit <= bounds[0] <= bounds[1] <= hi_limit:
         return f"must have {lo_limit:g} <= LOW <= HIGH <= {hi_limit:g} rad, got {bounds[0]:g},{bounds[1]:g}"
     return None
+
+
+def parse_sun_elevation(text: str) -> tuple[float, float]:
+    """"LOW,HIGH" [rad] as a checked range for the sun's height.
+
+    Raises:
+        ValueError: one line: not two numbers, or outside :func:`check_sun_elevation`'s bounds.
+    """
+    try:
+        bounds = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{text!r} is not LOW,HIGH in radians") from None
+    if (why := check_sun_elevation(bounds)) is not None:
+        raise ValueError(why)
+    return bounds[0], bounds[1]
 
 
 def check_initial(*, host_speed: float | None, gap: float | None, set_speed: float | None, preroll: int = 0) -> None:

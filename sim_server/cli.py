@@ -14,7 +14,7 @@ from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
-from protocol.scenarios import check_sun_elevation
+from protocol.scenarios import parse_sun_elevation
 from protocol.transport import is_loopback
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
@@ -31,12 +31,9 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
 
 def _sun_elevation(ctx: click.Context, param: click.Parameter, value: str) -> tuple[float, float]:
     try:
-        bounds = tuple(float(v) for v in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not LOW,HIGH in radians") from None
-    if (why := check_sun_elevation(bounds)) is not None:
-        raise click.BadParameter(why)
-    return bounds[0], bounds[1]
+        return parse_sun_elevation(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
 
 
 log = logging.getLogger("vacc.server")

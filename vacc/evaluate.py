@@ -24,13 +24,20 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
+from agent_client.cli import sun_elevation_option
 from agent_client.drive import COLD_START_HELP
+from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from energy.metrics import Metrics
-from protocol.constants import TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
-from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS, TEST_TRAJECTORIES
+from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.scenarios import (
+    DEFAULT_SET_SPEED,
+    LEAD_SCENARIOS,
+    SCENARIOS,
+    TEST_TRAJECTORIES,
+)
 from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
@@ -137,7 +144,7 @@ class Job:
     checkpoint: str | None = None
     human_file: str | None = None
     cold_start: bool = False  # engage a DDQN policy at frame 0, without the camera's pre-roll
-    traffic: int = TRAFFIC_PER_LANE  # the server's --traffic: cars in each adjacent lane
+    road: Road = DEFAULT_ROAD  # the server's traffic and sun
 
 
 def _controller(job: Job) -> Any:
@@ -155,11 +162,6 @@ def _controller(job: Job) -> Any:
     return make_controller("ddqn" if job.method.startswith("ddqn") else job.method, checkpoint=job.checkpoint)
 
 
-def traffic_note(traffic: int) -> str:
-    """The tables' words for a run's adjacent traffic: nothing for the default."""
-    return "" if traffic == TRAFFIC_PER_LANE else f", {traffic} cars in each adjacent lane (default {TRAFFIC_PER_LANE})"
-
-
 def run_job(job: Job) -> Job:
     """Drive one job through its own server process; returns it when its log is written."""
     import torch
@@ -175,7 +177,7 @@ def run_job(job: Job) -> Job:
     log = Path(job.log)
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
-    with local_server("--traffic", str(job.traffic), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
+    with local_server(*job.road.server_args(), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
         drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
                       preroll=0 if job.cold_start else None)  # fmt: skip
     if job.method == "lead":
@@ -269,7 +271,7 @@ def score_runs(out: Path, methods: Sequence[str], vehicle: str, settle: float = 
 
 def build_tables(
     out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str,
-    settle: float = SETTLE_S, seeds: Sequence[int] | None = None, runs: list[Run] | None = None, traffic: int = TRAFFIC_PER_LANE,
+    settle: float = SETTLE_S, seeds: Sequence[int] | None = None, runs: list[Run] | None = None, road: Road = DEFAULT_ROAD,
 ) -> dict[str, Any]:
     """Score every log, write table.md/table.csv; returns the combined metrics per method.
 
@@ -281,7 +283,7 @@ def build_tables(
         settle: seconds at the start of each run left out of the comfort rows [s].
         seeds: the seeds of a multi-seed evaluation; None: one seed.
         runs: the scored runs, if already at hand (:func:`score_runs`).
-        traffic: the runs' cars in each adjacent lane (named in the title unless the default).
+        road: the runs' traffic and sun (named in the title unless the default).
     """
     rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS + COMFORT_ROWS
     if runs is None:
@@ -327,7 +329,7 @@ def build_tables(
     cols = [labels[m] for m in methods]
     model = "CMEM " + vehicle if scenario == "ice" else "EV eq. 6 " + vehicle
     over = f"{len(trajs)} trajectories × {len(seeds)} seeds ({seed_text(seeds)})" if multi and seeds else f"{len(trajs)} trajectories"
-    lines = [f"# {scenario.upper()} results ({model}), average of {over}{traffic_note(traffic)}", ""]
+    lines = [f"# {scenario.upper()} results ({model}), average of {over}{road.note()}", ""]
 
     def table(traj: str | None, table_rows: list[Row] = rows, statistic: stats.Statistic = stats.mean) -> list[str]:
         t = ["| Metric | Better | " + " | ".join(cols) + " |", "| --- | --- |" + " --- |" * len(cols)]
@@ -488,14 +490,18 @@ def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
+@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, callback=sun_elevation_option, metavar="LOW,HIGH", help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given.")
-def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, lead_scenarios: str | None, traffic: int, suite: str) -> dict[str, Any] | None:
+def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table).
 
     Returns the combined metrics per method of the paper suite (see build_tables).
     """
     seed_list = _seed_list(seed, seeds, suite)
+    road = Road(traffic, sun_elevation)
+    if suite == "paper" and road.sun_elevation != SUN_ELEVATION:
+        raise click.BadParameter("test-1..test-4 keep a fixed sun; the lead scenarios draw theirs: add --suite safety", param_hint="--sun-elevation")
     leads = _lead_scenarios(lead_scenarios, suite)
     if suite == "safety":
         from vacc.safety import run_suite
@@ -511,7 +517,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
             found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
             if not with_acc and not found:
                 raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
-        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc, traffic=traffic))
+        click.echo(run_suite(Path(out), found, seed_list, jobs, cold_start, vehicles, leads, acc=with_acc, road=road))
         click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
         return None
     if methods is None:
@@ -539,7 +545,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     (out_dir / "logs").mkdir(parents=True, exist_ok=True)
     named = seed_list if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
     work = [
-        Job(m, t, scenario, s, str(log_path(out_dir, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None, cold_start, traffic)
+        Job(m, t, scenario, s, str(log_path(out_dir, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None, cold_start, road)
         for m in chosen
         for t in TRAJECTORIES
         for s in seed_list
@@ -547,7 +553,7 @@ def evaluate(scenario: str, out: str, methods: str | None, models: str, human_fi
     drive_jobs(work, jobs, f"evaluate {scenario}" + (f", seeds {seed_text(seed_list)}" if multi else ""))
     veh = vehicle or DEFAULT_VEHICLE[scenario]
     runs = score_runs(out_dir, chosen, veh, settle, named)
-    result = build_tables(out_dir, scenario, chosen, labels, veh, settle, named, runs, traffic)
+    result = build_tables(out_dir, scenario, chosen, labels, veh, settle, named, runs, road)
     from vacc import figures
 
     written = [

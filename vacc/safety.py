@@ -17,9 +17,10 @@ from typing import Any
 
 import click
 
+from agent_client.launcher import DEFAULT_ROAD, Road
 from energy import RunLogError, comfort, read_run_log
 from energy.metrics import comfort_metrics
-from protocol.constants import MIN_GAP, TRAFFIC_PER_LANE
+from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
 
 __all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
@@ -56,7 +57,7 @@ def safety_jobs(
     cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS,
     acc: bool = True,
-    traffic: int = TRAFFIC_PER_LANE,
+    road: Road = DEFAULT_ROAD,
 ) -> list[Any]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
@@ -69,12 +70,12 @@ def safety_jobs(
         cold_start: engage the models at frame 0, without the camera's pre-roll.
         vehicles: whose ACC drives (the models drive their own vehicle).
         acc: whether the ACC drives at all (``--methods`` without acc: the models alone).
-        traffic: cars in each adjacent lane of every run (the servers' ``--traffic``).
+        road: every run's traffic and sun (the servers' ``--traffic`` and ``--sun-elevation``).
     """
     drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
-                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, traffic)  # fmt: skip
+                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, road)  # fmt: skip
         for method, vehicle, path in drivers
         for trajectory in scenarios
         for seed in seeds
@@ -139,20 +140,20 @@ def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, li
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
-    traffic: int = TRAFFIC_PER_LANE,
+    road: Road = DEFAULT_ROAD,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
     Returns:
         The markdown table.
     """
-    from vacc.evaluate import Job, drive_jobs, traffic_note
+    from vacc.evaluate import Job, drive_jobs
 
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, traffic=traffic)
+    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, road=road)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
-    (out / "safety.md").write_text(f"# Safety suite{traffic_note(traffic)}\n\n" + table)
+    (out / "safety.md").write_text(f"# Safety suite{road.note()}\n\n" + table)
     with open(out / "safety.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()

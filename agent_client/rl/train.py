@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from agent_client.actions import make_action_type
+from agent_client.launcher import Road
 from agent_client.rl.config import Config
 from agent_client.rl.learner import STOP, Learner
 from agent_client.rl.network import Decision, linear_schedule
@@ -106,7 +107,7 @@ def train(
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,
-            server_args=(*learner.server_args, "--traffic", str(cfg.train_traffic), "--sun-elevation", ",".join(map(str, cfg.train_sun_elevation))),  # evaluations keep the defaults
+            server_args=(*learner.server_args, *Road(cfg.train_traffic, (cfg.train_sun_elevation[0], cfg.train_sun_elevation[1])).server_args()),  # evaluations keep the defaults
             set_speed=cfg.set_speed, action=cfg.action, eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward, preroll=cfg.preroll,
         )  # fmt: skip
         wall_s = _loop(cfg, learner, memory, env, state, progress)

@@ -8,6 +8,8 @@ import sys
 
 import pytest
 
+from agent_client.launcher import Road
+
 STATS = "vacc-server stats"  # the spawned server's counters at exit, logged at info
 
 
@@ -77,3 +79,24 @@ def test_drive_traffic_goes_to_the_spawned_server_and_is_refused_with_server(tmp
     bad = subprocess.run([*args, "--traffic", "5", "--server", "127.0.0.1:9"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "vacc serve --traffic 5" in bad.stderr, bad.stderr
     assert not (tmp_path / "t.csv").exists()
+
+
+def test_drive_sun_elevation_goes_to_the_spawned_server_and_is_refused_with_server(tmp_path):
+    args = [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--duration", "1", "--log", str(tmp_path / "t.csv")]
+    result = subprocess.run([sys.executable, "-m", "vacc", "-vv", *args[3:], "--sun-elevation", "0.4,0.5"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "--traffic 3 --sun-elevation 0.4,0.5" in result.stderr, result.stderr
+    (tmp_path / "t.csv").unlink()
+    bad = subprocess.run([*args, "--sun-elevation", "0.5,0.4"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "Invalid value for '--sun-elevation': must have 0.05 <= LOW <= HIGH <= 1.5 rad, got 0.5,0.4" in bad.stderr, bad.stderr
+    bad = subprocess.run([*args, "--sun-elevation", "low", "--server", "127.0.0.1:9"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "'low' is not LOW,HIGH in radians" in bad.stderr, bad.stderr
+    bad = subprocess.run([*args, "--sun-elevation", "0.4,0.5", "--server", "127.0.0.1:9"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "start the --server one with vacc serve --sun-elevation 0.4,0.5" in bad.stderr, bad.stderr
+    assert not (tmp_path / "t.csv").exists()
+
+
+@pytest.mark.parametrize(("road", "note"), [(Road(), ""), (Road(0), ", 0 cars in each adjacent lane (default 3)"),
+                                            (Road(3, (0.35, 0.5)), ", the sun 0.35-0.5 rad high (default 0.35-1.2)")])
+def test_a_road_names_itself_and_its_server_options(road, note):
+    assert road.note() == note
+    assert road.server_args() == ("--traffic", str(road.traffic), "--sun-elevation", ",".join(map(str, road.sun_elevation)))

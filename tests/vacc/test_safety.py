@@ -95,6 +95,24 @@ def test_a_given_scenario_and_lead_scenarios_drive_only_those(tmp_path):
     assert len(list((out / "logs").glob("*.csv"))) == 4
 
 
+def test_a_low_sun_is_named_and_leaves_the_accs_drive_alone(tmp_path):
+    # The ACC reads the gap, not the picture: under a low sun it drives the same, and the
+    # table says which sun it was.
+    logs = {}
+    for sun in ("0.35,0.5", "0.35,1.2"):
+        out = tmp_path / sun
+        result = subprocess.run(
+            [sys.executable, "-m", "vacc", "evaluate", "--suite", "safety", "--scenario", "ice", "--lead-scenarios", "constant",
+             "--seeds", "227", "--models", str(tmp_path), "--out", str(out), "--jobs", "1", "--sun-elevation", sun],
+            capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        title = (out / "safety.md").read_text().splitlines()[0]
+        assert title == ("# Safety suite, the sun 0.35-0.5 rad high (default 0.35-1.2)" if sun == "0.35,0.5" else "# Safety suite"), title
+        logs[sun] = (out / "logs" / "acc-ice-constant-227.csv").read_bytes()
+    assert logs["0.35,0.5"] == logs["0.35,1.2"]
+
+
 def test_methods_choose_the_drivers(tmp_path):
     models = tmp_path / "models"
     models.mkdir()
@@ -122,6 +140,8 @@ def test_methods_choose_the_drivers(tmp_path):
         (["--lead-scenarios", "stopped"], "--lead-scenarios"),  # the paper suite drives test-1..4
         (["--suite", "safety", "--methods", "acc,human"], "--methods"),  # the suite has no human driver
         (["--suite", "safety", "--traffic", "11"], "--traffic"),
+        (["--suite", "safety", "--sun-elevation", "0.5,0.4"], "--sun-elevation"),
+        (["--sun-elevation", "0.35,0.5"], "--sun-elevation"),  # the paper suite's test trajectories keep a fixed sun
         (["--suite", "safety", "--methods", "ddqn-eco", "--models", "no-such-models"], "--methods"),
     ],
 )
