@@ -65,12 +65,19 @@ def parse_hostport(value: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def sun_elevation_option(ctx: click.Context, param: click.Parameter, value: str) -> tuple[float, float]:
-    """Click callback: ``--sun-elevation LOW,HIGH`` [rad] as a checked range, or one line naming the option."""
-    try:
-        return parse_sun_elevation(value)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc)) from None
+class SunElevation(click.ParamType):
+    """``--sun-elevation LOW,HIGH`` [rad] as a checked range, or one line naming the option (a
+    type, not a callback, so that a command invoked from another gets its default converted too)."""
+
+    name = "LOW,HIGH"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> tuple[float, float]:
+        if isinstance(value, tuple):
+            return value
+        try:
+            return parse_sun_elevation(str(value))
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
 
 
 def parse_faults(ctx: click.Context, param: click.Parameter, value: str | None) -> FaultConfig | None:
@@ -176,7 +183,7 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
 @click.option("--duration", default=None, type=click.FloatRange(min=0.1), help="Stop after this many simulated seconds.")
 @click.option("--faults", callback=parse_faults, default=None, help="Inject faults on the client's sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05'.")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of the spawned server; with --server, start it with vacc serve --traffic.")
-@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, callback=sun_elevation_option, metavar="LOW,HIGH", help="Range [rad] the spawned server draws the sun's height from (random leads and lead scenarios); with --server, start it with vacc serve --sun-elevation.")
+@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] the spawned server draws the sun's height from (random leads and lead scenarios); with --server, start it with vacc serve --sun-elevation.")
 @click.option("--server-faults", default=None, help="Faults for the spawned server's sends (same syntax).")
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key of the server (vacc serve --key-file): every datagram carries a MAC.")

@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
-from agent_client.cli import sun_elevation_option
+from agent_client.cli import SunElevation
 from agent_client.drive import COLD_START_HELP
 from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.progress import progress_bar
@@ -490,7 +490,7 @@ def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
-@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, callback=sun_elevation_option, metavar="LOW,HIGH", help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
+@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(["paper", "safety"]), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given.")
 def evaluate(scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None, duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool, lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str) -> dict[str, Any] | None:
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
