@@ -23,6 +23,8 @@ import os
 from pathlib import Path
 from typing import IO, Any
 
+from agent_client.errors import InputFileError
+
 __all__ = ["COLUMNS", "RunLog", "CARD_VERSION", "card_path", "write_card", "read_card", "file_sha256"]
 
 CARD_VERSION = 1
@@ -100,7 +102,7 @@ def read_card(log: str | Path) -> dict[str, Any] | None:
     """The card of run log ``log``; None where it has none.
 
     Raises:
-        ValueError: one line: the card is not JSON, or not a card of a version this reads.
+        InputFileError: one line: the card is not JSON, or not a card of a version this reads.
     """
     path = card_path(log)
     try:
@@ -108,14 +110,14 @@ def read_card(log: str | Path) -> dict[str, Any] | None:
     except FileNotFoundError:
         return None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read it ({exc})") from None
+        raise InputFileError(f"{path}: cannot read it ({exc})") from None
     try:
         card = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON ({exc})") from None
+        raise InputFileError(f"{path}: not JSON ({exc})") from None
     if not isinstance(card, dict) or card.get("card") != CARD_VERSION:
         got = card.get("card") if isinstance(card, dict) else type(card).__name__
-        raise ValueError(f"{path}: not a run card of version {CARD_VERSION} (card: {got!r})")
+        raise InputFileError(f"{path}: not a run card of version {CARD_VERSION} (card: {got!r})")
     return card
 
 

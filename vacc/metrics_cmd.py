@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from agent_client.errors import InputFileError
 from agent_client.runlog import read_card
 from energy import RunLogError, evaluate_run
 from energy.metrics import D_SAFE_M, SETTLE_S, TIME_GAP_S, VEHICLE_NAMES, Metrics
@@ -96,7 +97,7 @@ def metrics(
         raise click.ClickException(str(e)) from None
     try:
         card = read_card(run_csv)
-    except ValueError as e:  # the metrics stand without it
+    except InputFileError as e:  # the metrics stand without it
         click.echo(f"warning: {e}; the run's card is left out", err=True)
         card = None
     if as_json:

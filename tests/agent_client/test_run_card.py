@@ -8,6 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from agent_client.cli import drive
+from agent_client.errors import InputFileError
 from agent_client.launcher import local_server
 from agent_client.runlog import CARD_VERSION, card_path, file_sha256, read_card, write_card
 from vacc.metrics_cmd import metrics
@@ -59,7 +60,7 @@ def test_a_broken_card_is_a_warning_and_the_metrics_still_come(tmp_path):
     log = tmp_path / "run.csv"
     assert _drive("--controller", "acc", "--duration", "2", "--log", str(log)).exit_code == 0
     card_path(log).write_text("{not json")
-    with pytest.raises(ValueError, match=r"run\.card\.json: not JSON"):
+    with pytest.raises(InputFileError, match=r"run\.card\.json: not JSON"):
         read_card(log)
     shown = CliRunner().invoke(metrics, [str(log), "--json"], catch_exceptions=False)
     assert shown.exit_code == 0 and "run's card is left out" in shown.stderr
@@ -67,7 +68,7 @@ def test_a_broken_card_is_a_warning_and_the_metrics_still_come(tmp_path):
     write_card(log, {"end": {"gap_min": float("nan")}})  # JSON has no NaN: written as null
     assert read_card(log)["end"] == {"gap_min": None}  # type: ignore[index]
     card_path(log).write_text(json.dumps({"card": 99}))
-    with pytest.raises(ValueError, match="not a run card of version 1"):
+    with pytest.raises(InputFileError, match="not a run card of version 1"):
         read_card(log)
 
 
