@@ -47,8 +47,8 @@ from protocol.scenarios import (
     SCENARIOS,
     TRAJECTORIES,
     check_initial,
-    parse_sun_elevation,
 )
+from sim_server.options import SunElevation
 
 LIVE_IMAGE = CAMERA_SIZE  # [px] the live window asks for the full camera (shown scaled up)
 
@@ -63,21 +63,6 @@ def parse_hostport(value: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise click.BadParameter(f"{value!r} is not HOST:PORT")
     return host.strip("[]"), int(port)
-
-
-class SunElevation(click.ParamType):
-    """``--sun-elevation LOW,HIGH`` [rad] as a checked range, or one line naming the option (a
-    type, not a callback, so that a command invoked from another gets its default converted too)."""
-
-    name = "LOW,HIGH"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> tuple[float, float]:
-        if isinstance(value, tuple):
-            return value
-        try:
-            return parse_sun_elevation(str(value))
-        except ValueError as exc:
-            self.fail(str(exc), param, ctx)
 
 
 def parse_faults(ctx: click.Context, param: click.Parameter, value: str | None) -> FaultConfig | None:
@@ -227,8 +212,8 @@ def drive(
     The log has one row per control step: t,frame,v_host,v_lead,gap,accel,force,
     collision,a_lead (SI units), then gap_est for a DDQN model with a gap head
     (vacc train --aux-gap). Beside it, LOG's card (run.csv -> run.card.json) says
-    what the CSV cannot: the episode asked for, the road (the server's traffic and
-    seed salt), the controller and its checkpoint's SHA-256, and how the run ended.
+    what the CSV cannot: the episode asked for, the road (the server's traffic, sun
+    range and seed salt), the controller and its checkpoint's SHA-256, and how the run ended.
     Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)

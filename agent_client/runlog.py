@@ -10,7 +10,7 @@ byte-identical for identical runs.
 
 ``vacc drive`` writes a **card** beside it (:func:`card_path`: ``run.csv`` ->
 ``run.card.json``): what the CSV cannot say, the episode asked for, the road it was
-driven on (the server's traffic and seed salt), the controller and its checkpoint's
+driven on (the server's traffic, sun range and seed salt), the controller and its checkpoint's
 digest, and how the run ended. The CSV stays byte-identical; the card has a clock time.
 """
 

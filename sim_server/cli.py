@@ -14,8 +14,8 @@ from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
-from protocol.scenarios import parse_sun_elevation
 from protocol.transport import is_loopback
+from sim_server.options import SunElevation
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
 
@@ -25,13 +25,6 @@ def _faults(ctx: click.Context, param: click.Parameter, value: str | None) -> Fa
         return None
     try:
         return FaultConfig.parse(value)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc)) from None
-
-
-def _sun_elevation(ctx: click.Context, param: click.Parameter, value: str) -> tuple[float, float]:
-    try:
-        return parse_sun_elevation(value)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from None
 
@@ -46,7 +39,7 @@ log = logging.getLogger("vacc.server")
 @click.option("--realtime", is_flag=True, help="Pace the world to the wall clock (for a human driver).")
 @click.option("--substeps", default=5, show_default=True, type=click.IntRange(1, 1000), help="Physics steps of 0.02 s per control step.")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming), drawn from the episode seed.")
-@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, callback=_sun_elevation, metavar="LOW,HIGH", help="Range [rad] each episode's sun height is drawn from (random leads and lead scenarios); a low sun throws long shadows across the road.")
+@click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] each episode's sun height is drawn from (random leads and lead scenarios); a low sun throws long shadows across the road.")
 @click.option("--session-timeout", default=10.0, show_default=True, type=click.FloatRange(0.1, 3600), help="Seconds of silence before a client's session is freed.")
 @click.option("--faults", callback=_faults, default=None, help="Inject faults on sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05,seed=1'.")
 @click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")

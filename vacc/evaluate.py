@@ -24,7 +24,6 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
-from agent_client.cli import SunElevation
 from agent_client.drive import COLD_START_HELP
 from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.progress import progress_bar
@@ -38,6 +37,7 @@ from protocol.scenarios import (
     SCENARIOS,
     TEST_TRAJECTORIES,
 )
+from sim_server.options import SunElevation
 from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
