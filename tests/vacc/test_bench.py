@@ -44,3 +44,17 @@ def test_quick_bench_reports_every_figure(tmp_path):
         assert value > 0 or path == "/lockstep_no_image/image_bytes", path
     assert "lockstep, no image" in result.stdout
     assert figures["lockstep_key"]["keyed"]["reps"] == figures["lockstep_key"]["plain"]["reps"]
+
+
+def test_gpu_bench_rows_on_the_cpu():
+    """The lent-machine learner bench runs without CUDA too, one row per batch size;
+    each update row's sampling and step are parts of its rate."""
+    from agent_client.bench.gpu import forward_latency, update_wall
+
+    rows = update_wall("cpu", 1, batches=(4, 8), repeats=2)
+    assert [r["batch"] for r in rows] == [4, 8]
+    for r in rows:
+        assert r["device"] == "cpu" and r["update_s"] > 0 and r["sample_s"] > 0
+        assert abs(r["samples_per_s"] - r["batch"] / (r["update_s"] + r["sample_s"])) < 1e-9
+    f = forward_latency("cpu", 1, repeats=3)
+    assert 0 < f["median_s"] <= f["p90_s"]
