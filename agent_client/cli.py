@@ -22,6 +22,7 @@ from agent_client.controllers.human_file import (
     HumanFileRecorder,
     RecordingController,
     read_human_file,
+    road_extra,
     start_extra,
     trajectory_label,
 )
@@ -282,7 +283,7 @@ def drive(
             )  # fmt: skip
             write_card(log_path, card)  # before the first row: an interrupted run keeps its card
             if record_path is not None:
-                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration, extra=start_extra(**start))
+                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration, extra={**start_extra(**start), **road_extra(session.welcome)})
                 recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
                 policy = RecordingController(policy, recorder)
             summary = drive_episode(

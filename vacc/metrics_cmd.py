@@ -31,11 +31,12 @@ def json_safe(result: Metrics) -> Metrics:
 def card_line(card: dict[str, Any]) -> str:
     """One line of what a run card says: the episode, the road and who drove."""
     ep, road, ctl = card.get("episode") or {}, card.get("road") or {}, card.get("controller") or {}
-    traffic = road.get("traffic")
+    traffic, sun = road.get("traffic"), road.get("sun_elevation")  # None: a server before protocol 5
     who = str(ctl.get("name", "?")) + (f" ({ctl['checkpoint']})" if ctl.get("checkpoint") else "")
+    sun_text = "unknown" if not isinstance(sun, list) or len(sun) != 2 else "{:g}-{:g} rad high".format(*sun)
     return (
         f"run: {ep.get('scenario', '?')}/{ep.get('trajectory', '?')} seed {ep.get('seed', '?')}, set speed {ep.get('set_speed', '?')} m/s, "
-        f"traffic {'unknown' if traffic is None else traffic} a lane, {who}"
+        f"traffic {'unknown' if traffic is None else traffic} a lane, the sun {sun_text}, {who}"
     )
 
 

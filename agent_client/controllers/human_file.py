@@ -48,6 +48,7 @@ __all__ = [
     "RecordingController",
     "trajectory_label",
     "start_extra",
+    "road_extra",
 ]
 
 MAGIC = "# vacc-human-file v1"
@@ -66,6 +67,17 @@ def start_extra(*, set_speed: float | None, host_speed: float | None, gap: float
     """Header items recording a run's set speed [m/s] and given initial host speed [m/s] and gap [m]."""
     values = {"set_speed": DEFAULT_SET_SPEED if set_speed is None else set_speed, "host_speed": host_speed, "gap": gap}
     return {k: repr(float(v)) for k, v in values.items() if v is not None}
+
+
+def road_extra(welcome: dict[str, Any] | None) -> dict[str, str]:
+    """Header items recording the road the human saw (a server's welcome since protocol 5):
+    its traffic and the range of the sun's height. They change the scenery, not the drive,
+    so a replay is not checked against them."""
+    w = welcome or {}
+    extra = {} if w.get("traffic") is None else {"traffic": str(int(w["traffic"]))}
+    if isinstance(w.get("sun_elevation"), list | tuple) and len(w["sun_elevation"]) == 2:
+        extra["sun_elevation"] = ",".join(repr(float(v)) for v in w["sun_elevation"])
+    return extra
 
 
 def trajectory_label(trajectory: str) -> str:
@@ -98,7 +110,7 @@ class HumanFileHeader:
             "duration": "none" if self.duration is None else repr(float(self.duration)),
             **self.extra,
         }
-        return "# " + " ".join(f"{k}={quote(v, safe='/.-_:+')}" for k, v in pairs.items())
+        return "# " + " ".join(f"{k}={quote(v, safe='/.-_:+,')}" for k, v in pairs.items())
 
 
 @dataclass(frozen=True)

@@ -141,7 +141,7 @@ def test_cli_replay_of_a_recording_is_byte_identical_and_pads(tmp_path):
     live, human, again = tmp_path / "live.csv", tmp_path / "human.csv", tmp_path / "again.csv"
     result = _run("--controller", "hdm", "--duration", "20", "--log", str(live), "--record", str(human), "--quiet")
     assert result.exit_code == 0, result.output
-    header = f"\n# scenario=ice trajectory=test-1 seed=0 control_period=0.1 protocol={PROTOCOL_VERSION} duration=20.0 set_speed=33.5\n"
+    header = f"\n# scenario=ice trajectory=test-1 seed=0 control_period=0.1 protocol={PROTOCOL_VERSION} duration=20.0 set_speed=33.5 traffic=3 sun_elevation=0.35,1.2\n"
     assert human.read_text().startswith(MAGIC + header)
     # The replay takes its duration from the header.
     result = _run("--controller", "human-file", "--human-file", str(human), "--log", str(again), "--quiet")

@@ -38,7 +38,7 @@ def test_a_spawned_servers_road_and_a_traces_digest_are_on_the_card(tmp_path):
     assert card["end"]["steps"] == 20 and card["end"]["collision"] is False and card["end"]["reason"] == "end"
     assert card["columns"][:3] == ["t", "frame", "v_host"]
     shown = CliRunner().invoke(metrics, [str(log)], catch_exceptions=False)
-    assert shown.exit_code == 0 and shown.output.splitlines()[0] == f"run: ice/{trace} seed 3, set speed 33.5 m/s, traffic 5 a lane, acc"
+    assert shown.exit_code == 0 and shown.output.splitlines()[0] == f"run: ice/{trace} seed 3, set speed 33.5 m/s, traffic 5 a lane, the sun 0.35-1.2 rad high, acc"
 
 
 def test_a_given_servers_traffic_comes_from_its_welcome(tmp_path):
@@ -54,6 +54,8 @@ def test_a_given_servers_traffic_comes_from_its_welcome(tmp_path):
     assert card["controller"]["checkpoint_sha256"] == file_sha256(checkpoint)
     assert card["episode"]["preroll"] == 14  # the stack's span: 7 gaps of 2 control steps
     assert card["end"]["steps"] == 10
+    shown = CliRunner().invoke(metrics, [str(log)], catch_exceptions=False)
+    assert shown.output.splitlines()[0].endswith(f"traffic 7 a lane, the sun 0.4-0.5 rad high, ddqn ({checkpoint})")
 
 
 def test_a_broken_card_is_a_warning_and_the_metrics_still_come(tmp_path):

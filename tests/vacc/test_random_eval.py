@@ -18,3 +18,13 @@ def test_a_traffic_outside_the_servers_range_is_refused_in_one_line(tmp_path, tr
     assert result.returncode == 2
     assert f"--traffic: {traffic} is not in 0..10" in result.stderr.strip().splitlines()[-1]
     assert not out.exists()  # refused before anything was written
+
+
+@pytest.mark.parametrize(("sun", "why"), [("0.01,0.5", "must have 0.05 <= LOW <= HIGH <= 1.5 rad"), ("low", "is not LOW,HIGH in radians"), ("0.7,0.4", "got 0.7,0.4")])
+def test_a_sun_outside_the_servers_range_is_refused_in_one_line(tmp_path, sun, why):
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, str(SCRIPT), "--sun-elevation", sun, "--out", str(out)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("random_eval.py: error: --sun-elevation: ") and why in last
+    assert not out.exists()
