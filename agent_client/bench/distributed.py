@@ -34,6 +34,8 @@ from agent_client.rl.train import train
 
 __all__ = ["acting_rate", "learner_costs", "run"]
 
+MIN_DELIVERIES = 8  # per actor, for a window that opens after every actor's first
+
 
 def _cfg(k: int, steps: int, learning: bool) -> Config:
     return Config(
@@ -64,17 +66,22 @@ def _tree_cpu_s(root: int) -> float:
 
 
 def acting_rate(k: int, steps: int, learning: bool = False, use_ray: bool = False, actor_cpus: float = 1.0) -> dict[str, Any]:
-    """Env steps/s reaching one learner from ``k`` actors, measured from the first batch on.
+    """Env steps/s reaching one learner from ``k`` actors, over the whole run and over a
+    window that opens once every actor has delivered (start-up excluded) and closes at
+    90 % of the run (shut-down excluded).
 
     Also the CPU seconds per env step of every process of the run together (learner,
-    actors, servers; with Ray, its daemons too, as :func:`run` starts Ray here),
-    between the first batch and 90 % of the run (start-up and shut-down excluded),
-    read from /proc.
+    actors, servers; with Ray, its daemons too, as :func:`run` starts Ray here) over that
+    window, read from /proc. Actors deliver ``actor_batch`` transitions at a time, so a
+    run of a few deliveries per actor has no window: its window figures are left out
+    (``window`` says why), rather than counting steps taken before the window opened.
     """
     marks: list[tuple[int, float, float]] = []  # (step, wall, cpu)
+    delivered: set[int] = set()
 
     def on_batch(step: int, i: int, batch: dict[str, Any]) -> None:
-        if not marks or (len(marks) == 1 and step >= 0.9 * steps):
+        delivered.add(i)
+        if (not marks and len(delivered) == k) or (len(marks) == 1 and step >= 0.9 * steps):
             marks.append((step, time.perf_counter(), _tree_cpu_s(os.getpid()) + time.process_time()))
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -82,14 +89,17 @@ def acting_rate(k: int, steps: int, learning: bool = False, use_ray: bool = Fals
         s = train_distributed(_cfg(k, steps, learning), tmp, progress=False, use_ray=use_ray, actor_cpus=actor_cpus, on_batch=on_batch)
         wall = time.perf_counter() - t0
     row = {
-        "k": k, "steps": s["steps"], "env_steps_per_s": s["env_steps_per_s"], "wall_s": wall,
+        "k": k, "steps": s["steps"], "env_steps_per_s": s["env_steps_per_s"], "wall_s": wall, "run_steps_per_s": s["steps"] / wall,
         "transitions_by_actor": s["transitions_by_actor"], "load": os.getloadavg()[0],
     }  # fmt: skip
-    if len(marks) == 2:  # Ray: its daemons and workers are children of this process too (ray.init here)
+    per_actor = steps / (k * Config.actor_batch)
+    if len(marks) == 2 and per_actor >= MIN_DELIVERIES:  # Ray: its daemons and workers are children of this process too (ray.init here)
         (s0, t0, c0), (s1, t1, c1) = marks
         row["window_steps_per_s"] = (s1 - s0) / (t1 - t0)
         row["cpu_ms_per_step"] = 1e3 * (c1 - c0) / (s1 - s0)
         row["cores_used"] = (c1 - c0) / (t1 - t0)
+    else:
+        row["window"] = f"none: {per_actor:.1f} deliveries per actor, at least {MIN_DELIVERIES} needed (--steps {MIN_DELIVERIES * k * Config.actor_batch} or more)"
     return row
 
 
@@ -152,8 +162,12 @@ def run(ks: tuple[int, ...] = (1, 2, 4), steps: int = 1500, reps: int = 2, learn
     summary = {}
     for mode in sorted({r["mode"] for r in rows}):
         for k in sorted({r["k"] for r in rows if r["mode"] == mode}):
-            v = [r["env_steps_per_s"] for r in rows if r["mode"] == mode and r["k"] == k]
-            summary[f"{mode}/K={k}"] = {"median": float(np.median(v)), "all": v}
+            same = [r for r in rows if r["mode"] == mode and r["k"] == k]
+            if mode == "single-stream" or all("window_steps_per_s" in r for r in same):
+                v = [r.get("window_steps_per_s", r["env_steps_per_s"]) for r in same]
+                summary[f"{mode}/K={k}"] = {"median": float(np.median(v)), "all": v}
+            else:  # too short a run: from the first batch on, steps taken before it would count
+                summary[f"{mode}/K={k}"] = {"median": None, "window": next(r["window"] for r in same if "window" in r)}
     return {"rows": rows, "summary": summary, "learner": learner_costs(), "learning": learning, "cpus": os.cpu_count()}
 
 

@@ -58,3 +58,17 @@ def test_gpu_bench_rows_on_the_cpu():
         assert abs(r["samples_per_s"] - r["batch"] / (r["update_s"] + r["sample_s"])) < 1e-9
     f = forward_latency("cpu", 1, repeats=3)
     assert 0 < f["median_s"] <= f["p90_s"]
+
+
+def test_scaling_bench_has_a_window_only_after_every_actor_delivered_often():
+    """Two actors of the multi-server trainer (real servers): a run of a few deliveries per
+    actor reports no window rate (it once counted steps taken before the window opened, and
+    printed 48,000 steps/s at K = 15); a longer one does, inside the whole run's bounds."""
+    from agent_client.bench.distributed import MIN_DELIVERIES, acting_rate
+    from agent_client.rl.config import Config
+
+    short = acting_rate(2, 2 * Config.actor_batch * 2)
+    assert "window_steps_per_s" not in short and short["window"].startswith("none: 2.0 deliveries per actor")
+    long = acting_rate(2, 2 * Config.actor_batch * MIN_DELIVERIES)
+    assert "window" not in long and long["window_steps_per_s"] > 0 and long["cores_used"] > 0
+    assert long["run_steps_per_s"] <= long["env_steps_per_s"]  # the whole run includes the start-up
