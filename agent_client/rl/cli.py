@@ -110,11 +110,13 @@ def make_config(values: dict[str, Any]) -> Config:
             v = type(getattr(Config(), f.name))(v)  # "2" -> 2 for --zoom
         elif str(f.type).startswith("tuple"):
             v = tuple(t.strip() for t in v.split(",") if t.strip())
-            if "float" in str(f.type):
+            number = float if "float" in str(f.type) else int if "int" in str(f.type) else None
+            if number is not None:
                 try:
-                    v = tuple(float(t) for t in v)
+                    v = tuple(number(t) for t in v)
                 except ValueError:
-                    raise click.BadParameter(f"{values[f.name]!r} is not a comma-separated list of numbers", param_hint=option_name(f.name)) from None
+                    kind = "numbers" if number is float else "whole numbers"
+                    raise click.BadParameter(f"{values[f.name]!r} is not a comma-separated list of {kind}", param_hint=option_name(f.name)) from None
         elif f.name in ZERO_IS_NONE and v is not None and v <= 0:
             v = None  # 0: the whole trajectory
         kw[f.name] = v

@@ -30,7 +30,7 @@ __all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUM
 
 SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
-TEACHERS = ("none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin")  # who labels the states in teacher (DAgger) runs
+TEACHERS = ("none", "policy", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -176,6 +176,13 @@ class Config:
     whole stack, as in the runs before protocol 4."""
     speed_scale: float = 30.0
     """[m/s] host speeds are divided by this before the network."""
+    conv_channels: tuple[int, ...] = (16, 32, 64)
+    """Output channels of the network's three convolutions (the shipped models': 16,32,64).
+    Narrower layers decide faster (docs/benchmarks.md: 8,16,32 with --hidden 128 is a quarter
+    of the arithmetic); a network of another width starts from scratch or is distilled
+    (--teacher policy), since --init-from needs the same shapes."""
+    hidden: int = 256
+    """Units of the network's hidden fully connected layer (the shipped models': 256)."""
     zoom: int = 1
     """Camera window: 1, the paper's (the 400x400 camera halved); 2, the same 105x150
     window at full resolution (the lead at 55 m twice as wide). Checkpoints record it."""
@@ -197,7 +204,8 @@ class Config:
     init_from: str | None = None
     """A policy checkpoint whose weights start the run (fine-tuning, e.g. force from gap)."""
     teacher: str = "none"
-    """"none": Double DQN on the reward. "acc": learn from a privileged teacher instead
+    """"none": Double DQN on the reward. "policy": the decisions of --teacher-policy, a
+    trained network seeing the same frames (distillation; nothing privileged). "acc": learn from a privileged teacher instead
     (DAgger, docs/training.md): the traditional ACC, which reads the gap and the lead's
     speed, labels every visited state with the action nearest its force; the network,
     from pixels as ever, learns the labels by cross-entropy. "acc-55": the same ACC law
@@ -218,6 +226,11 @@ class Config:
     0.15, opening the gap from a close start faster for 1.7 % more fuel. "eco-mid(-margin)":
     beta 0.125, between the two (on random ICE leads 300-307 through the ramp: 2.5 % under
     the ACC's fuel at a worst gap RMSE of 3.20 m; eco 3.5 % at 3.33 m, eco-firm 1.3 % at 3.08 m)."""
+    teacher_policy: str | None = None
+    """(--teacher policy) the policy checkpoint whose decisions label the states: policy
+    distillation, e.g. into a narrower network (--conv-channels, --hidden). The teacher sees
+    what the student sees (frames, speeds, controls), so nothing privileged; it must
+    observe the same way (frame stack, stride, zoom, action type, set speed)."""
     teacher_brake: float = 3.5
     """[m/s^2] (teacher, ramp action) the full brake, which acts at once and is released
     only at the ramp's rate, is a label only where the teacher decelerates at least this
@@ -325,6 +338,12 @@ class Config:
             raise bad("train_sun_elevation", why)
         if self.teacher not in TEACHERS:
             raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
+        if (self.teacher == "policy") != (self.teacher_policy is not None):
+            raise bad("teacher_policy", "is the checkpoint of --teacher policy: give both or neither")
+        if len(self.conv_channels) != 3 or not all(isinstance(c, int) and 1 <= c <= 512 for c in self.conv_channels):
+            raise bad("conv_channels", f"must be three whole numbers in 1..512, got {','.join(map(str, self.conv_channels))}")
+        if not 1 <= self.hidden <= 4096:
+            raise bad("hidden", f"must be in 1..4096, got {self.hidden}")
         if not self.teacher_brake >= 0.0:
             raise bad("teacher_brake", "must be >= 0")
         if not self.brake_weight > 0.0:
@@ -333,6 +352,8 @@ class Config:
             raise bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
         if not (math.isfinite(self.teacher_lag) and self.teacher_lag >= 0.0):
             raise bad("teacher_lag", f"must be finite and >= 0 s, got {self.teacher_lag}")
+        if self.teacher_lag > 0.0 and self.teacher == "policy":
+            raise bad("teacher_lag", "delays a law's view of the closing speed: a policy teacher sees the frames as they are")
         if self.teacher_lag > 0.0 and self.teacher == "none":
             raise bad("teacher_lag", "delays a teacher's view of the closing speed: it needs a teacher")
         if self.teacher_steps < 1:
@@ -430,7 +451,7 @@ def config_from(d: dict[str, Any], path: Any) -> Config:
     """
     names = {f.name for f in dataclasses.fields(Config)}
     known = {k: v for k, v in d.items() if k in names}
-    for name in ("eval_trajectories", "train_trajectories", "eco_weights", "train_sun_elevation"):
+    for name in ("eval_trajectories", "train_trajectories", "eco_weights", "train_sun_elevation", "conv_channels"):
         if name in known:
             known[name] = tuple(known[name])
     for name, value in LEGACY_VALUES.items():  # a config saved before the setting existed

@@ -209,6 +209,39 @@ def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | N
     return LateClosing(law, lag, CONTROL_PERIOD) if lag > 0.0 else law
 
 
+class PolicyTeacher:
+    """A trained policy as the teacher of a DAgger run (``--teacher policy``): distillation.
+
+    It decides on the student's own observation (frames, speeds, controls: nothing
+    privileged) with its checkpoint's decision rule; the label is its action, or, for the
+    mean decision, the level whose ramp brings the held force nearest its target (as a
+    law's force is labelled). Where it drives, it drives as itself.
+
+    Raises:
+        InputFileError: an unreadable checkpoint, or one that observes or acts otherwise
+            than ``cfg`` (frame stack, stride, zoom, action type, set speed).
+    """
+
+    def __init__(self, cfg: Config):
+        path = str(cfg.teacher_policy)
+        q, tcfg = load_policy(path)
+        for name in ("frame_stack", "stack_stride", "zoom", "action", "speed_scale", "set_speed"):
+            if getattr(tcfg, name) != getattr(cfg, name):
+                raise InputFileError(f"{path}: the teacher's {name} is {getattr(tcfg, name)!r}, the student's {getattr(cfg, name)!r}: a teacher must observe and act as its student")
+        self.policy = Policy.of(q, tcfg)
+        self.actions = make_action_type(cfg.action)
+
+    def reset(self) -> None:
+        """Start an episode (the decision rule's brake confirmation)."""
+        self.policy.reset()
+
+    def decide(self, obs: dict[str, Any], held: Any, hard_brake: float) -> tuple[Decision, int]:
+        """Its decision on ``obs`` and the label in ``held``'s action type (the env's, which
+        holds the student's force)."""
+        d = self.policy(obs)
+        return d, d.action if d.target is None else held.imitate(d.target, hard_brake)
+
+
 def _teacher_law(name: str) -> AccController:
     """The ACC law a teacher name stands for."""
     law = name.removesuffix("-margin")
@@ -278,7 +311,7 @@ class Learner:
         self.acting_policy = Policy.of(self.acting, cfg)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
-        self.teacher = make_teacher(cfg.teacher, cfg.teacher_lag)
+        self.teacher = PolicyTeacher(cfg) if cfg.teacher == "policy" else make_teacher(cfg.teacher, cfg.teacher_lag)
         self.label_weights = label_weights(cfg).to(self.device) if cfg.brake_weight != 1.0 else None
         self.updates = 0
         self.best_score = math.inf

@@ -65,6 +65,8 @@ class QNetwork(nn.Module):
     conv 5x5/4 (16) -> conv 4x4/2 (32) -> conv 3x3/2 (64) -> 2560 features
     [2560 features, 8 speeds / speed_scale] -> fc 256 -> fc 21
 
+    (those widths are the defaults: ``conv_channels`` and ``hidden`` make it narrower)
+
     About 693 k parameters (2.8 MB as float32). The first layer is a 5x5 kernel at
     stride 4 rather than Atari's 8x8: on one CPU thread it cut a batch-32 update
     from about 80 ms to 58 ms and the batch-1 forward by about 15 %.
@@ -79,30 +81,31 @@ class QNetwork(nn.Module):
 
     def __init__(
         self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0,
-        gap_head: bool = False, closing_head: bool = False,
+        gap_head: bool = False, closing_head: bool = False, conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256,
     ):  # fmt: skip
         super().__init__()
         self.speed_scale, self.n_controls = speed_scale, n_controls
         # force as it is (in [-1, 1]); set speed over the speed scale
         self._control_scale = torch.tensor([1.0, speed_scale][:n_controls])
+        c1, c2, c3 = conv_channels
         self.conv = nn.Sequential(
-            nn.Conv2d(frame_stack, 16, 5, stride=4),
+            nn.Conv2d(frame_stack, c1, 5, stride=4),
             nn.ReLU(),
-            nn.Conv2d(16, 32, 4, stride=2),
+            nn.Conv2d(c1, c2, 4, stride=2),
             nn.ReLU(),
-            nn.Conv2d(32, 64, 3, stride=2),
+            nn.Conv2d(c2, c3, 3, stride=2),
             nn.ReLU(),
             nn.Flatten(),
         )
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1]
         self._convs: tuple[nn.Conv2d, ...] = tuple(m for m in self.conv if isinstance(m, nn.Conv2d))
-        self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack * (1 + n_controls), 256), nn.ReLU(), nn.Linear(256, n_actions))
+        self.fc = nn.Sequential(nn.Linear(n_conv + frame_stack * (1 + n_controls), hidden), nn.ReLU(), nn.Linear(hidden, n_actions))
         # plain tuples, not attributes, so that the state dict keeps one name per tensor
         self._linears: tuple[nn.Linear, ...] = tuple(m for m in self.fc if isinstance(m, nn.Linear))
         # created after the layers above, so that a network with the head draws their initial weights as one without
-        self.gap_head = nn.Linear(256, 1) if gap_head else None
-        self.closing_head = nn.Linear(256, 1) if closing_head else None
+        self.gap_head = nn.Linear(hidden, 1) if gap_head else None
+        self.closing_head = nn.Linear(hidden, 1) if closing_head else None
 
     @classmethod
     def of(cls, cfg: Any) -> QNetwork:
@@ -110,7 +113,8 @@ class QNetwork(nn.Module):
         from agent_client.actions import make_action_type
 
         actions = make_action_type(cfg.action)
-        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0, closing_head=cfg.aux_closing > 0.0)
+        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0, closing_head=cfg.aux_closing > 0.0,
+                   conv_channels=tuple(cfg.conv_channels), hidden=cfg.hidden)  # fmt: skip
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """Q-values.

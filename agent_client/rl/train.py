@@ -30,7 +30,7 @@ import numpy as np
 from agent_client.actions import make_action_type
 from agent_client.launcher import Road
 from agent_client.rl.config import Config
-from agent_client.rl.learner import STOP, Learner
+from agent_client.rl.learner import STOP, Learner, PolicyTeacher
 from agent_client.rl.network import Decision, linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
@@ -197,7 +197,11 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     teacher's answer in the states its own mistakes lead to.
     """
     rng = learner.acting_rng
-    if learner.teacher is not None:
+    if isinstance(learner.teacher, PolicyTeacher):  # a network on the same observation: distillation
+        own, label = learner.teacher.decide(obs, env.actions, cfg.teacher_brake)
+        if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
+            return own, label
+    elif learner.teacher is not None:
         label = env.actions.imitate(learner.teacher(info), cfg.teacher_brake)  # privileged: reads the gap, never the network
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
             return Decision(label), label
