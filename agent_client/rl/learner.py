@@ -351,6 +351,11 @@ class Learner:
         init_q, init_cfg = load_policy(cfg.init_from)
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
+        widths = [(",".join(map(str, c.conv_channels)), c.hidden) for c in (init_cfg, cfg)]
+        if widths[0] != widths[1]:
+            (c0, h0), (c1, h1) = widths
+            raise InputFileError(f"{cfg.init_from}: a network of {c0} channels and {h0} hidden units, this run's {c1} and {h1}: "
+                                 "start from scratch, or learn from it with --teacher policy")  # fmt: skip
         if init_cfg.action == cfg.action and init_q.state_dict().keys() == self.q.state_dict().keys():
             self.q.load_state_dict(init_q.state_dict())
         else:  # another action set or a gap head added: keep its perception, learn the new output layers

@@ -111,3 +111,13 @@ def test_a_distilled_student_trains_resumes_and_drives(tmp_path):
                "--duration", "2", "--log", str(log)],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
+
+
+def test_init_from_a_network_of_another_width_is_refused_in_one_line(tmp_path):
+    result = CliRunner().invoke(
+        main, ["train", "--reward", "eco", "--action", "ramp-fine", "--zoom", "2", "--init-from", TEACHER, "--conv-channels", "8,16,32",
+               "--hidden", "128", "--steps", "10", "--out", str(tmp_path / "run")],
+    )  # fmt: skip
+    assert result.exit_code == 1 and result.exception is not None and isinstance(result.exception, SystemExit)
+    last = result.output.strip().splitlines()[-1]
+    assert "16,32,64 channels and 256 hidden units, this run's 8,16,32 and 128" in last and "--teacher policy" in last
