@@ -229,7 +229,6 @@ class PolicyTeacher:
             if getattr(tcfg, name) != getattr(cfg, name):
                 raise InputFileError(f"{path}: the teacher's {name} is {getattr(tcfg, name)!r}, the student's {getattr(cfg, name)!r}: a teacher must observe and act as its student")
         self.policy = Policy.of(q, tcfg)
-        self.actions = make_action_type(cfg.action)
 
     def reset(self) -> None:
         """Start an episode (the decision rule's brake confirmation)."""
