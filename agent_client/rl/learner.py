@@ -205,6 +205,8 @@ def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | N
     """
     if name == "none":
         return None
+    if name == "policy":
+        raise ValueError("the policy teacher is a network: PolicyTeacher(cfg), with cfg.teacher_policy")
     law = _teacher_law(name)
     return LateClosing(law, lag, CONTROL_PERIOD) if lag > 0.0 else law
 

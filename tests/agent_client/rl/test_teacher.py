@@ -203,7 +203,9 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
     obs = {"gap": 55.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert fixed(obs) == 0.0
     assert make_teacher("eco")(obs) == 0.0
-    assert set(TEACHERS) == {"none", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin",
+    with pytest.raises(ValueError, match="PolicyTeacher"):
+        make_teacher("policy")  # a network, not a law: it needs its checkpoint
+    assert set(TEACHERS) == {"none", "policy", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin",
                              "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin",
                              "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin"}  # fmt: skip
 
