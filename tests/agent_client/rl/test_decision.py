@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from driving import drive_briefly
 
 from agent_client.actions import EMERGENCY_LEVEL, FINE_LEVELS, RAMP_RATE, FineRamp
 from agent_client.errors import InputFileError
@@ -211,12 +212,7 @@ def test_a_mean_decision_run_trains_evaluates_and_drives_smoothly(tmp_path):
     summary = train(cfg, tmp_path / "run", progress=False)
     assert summary["last_eval"][0]["steps"] > 0
     assert load_policy(tmp_path / "run" / "best.pt")[1].decision == "mean"
-    log = tmp_path / "drive.csv"
-    result = CliRunner().invoke(
-        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "run" / "best.pt"), "--trajectory", "random",
-               "--duration", "4", "--log", str(log)],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
+    log = drive_briefly(tmp_path / "run" / "best.pt", tmp_path / "drive.csv", "random", 4.0)
     forces = np.array([float(r["force"]) for r in csv.DictReader(log.open())])
     steps = np.abs(np.diff(forces))
     # a ramp (or the full brake at once); off the levels' grid where the mean lies between them

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from driving import drive_briefly
 
 from agent_client.actions import make_action_type
 from agent_client.errors import InputFileError
@@ -105,12 +106,7 @@ def test_a_distilled_student_trains_resumes_and_drives(tmp_path):
     assert "losses/teacher_ce" in (tmp_path / "whole" / "scalars.csv").read_text()
     student, scfg = load_policy(tmp_path / "whole" / "best.pt")
     assert tuple(scfg.conv_channels) == (8, 16, 32) and student.fc[0].out_features == 128
-    log = tmp_path / "drive.csv"
-    result = CliRunner().invoke(
-        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "stopped",
-               "--duration", "2", "--log", str(log)],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
+    drive_briefly(tmp_path / "whole" / "best.pt", tmp_path / "drive.csv")
 
 
 def test_init_from_a_network_of_another_width_is_refused_in_one_line(tmp_path):

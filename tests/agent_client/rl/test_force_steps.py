@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from driving import drive_briefly
 
 from agent_client.actions import (
     EMERGENCY_LEVEL,
@@ -209,12 +210,7 @@ def test_steps_policy_on_a_scenario_mix_resumes_exactly(tmp_path):
     for key in a["model"]:
         torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
     # and it drives: vacc drive takes the policy, holding its force between steps
-    log = tmp_path / "drive.csv"
-    result = CliRunner().invoke(
-        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "stopped",
-               "--duration", "2", "--log", str(log)],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
+    log = drive_briefly(tmp_path / "whole" / "best.pt", tmp_path / "drive.csv")
     forces = np.loadtxt(log, delimiter=",", skiprows=1, usecols=6)
     assert np.all(np.abs(np.diff(forces)) <= 0.5 + 1e-9)
 

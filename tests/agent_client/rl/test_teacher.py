@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from driving import drive_briefly
 
 from agent_client.actions import (
     ACTION_TYPES,
@@ -181,12 +182,7 @@ def test_a_teacher_run_resumes_exactly_and_its_student_drives(tmp_path):
         torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
     scalars = (tmp_path / "whole" / "scalars.csv").read_text()
     assert "losses/teacher_ce" in scalars and "losses/td_loss" not in scalars
-    log = tmp_path / "drive.csv"
-    result = CliRunner().invoke(
-        main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "best.pt"), "--trajectory", "stopped",
-               "--duration", "2", "--log", str(log)],
-    )  # fmt: skip
-    assert result.exit_code == 0, result.output
+    drive_briefly(tmp_path / "whole" / "best.pt", tmp_path / "drive.csv")
 
 
 def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
