@@ -62,7 +62,12 @@ WINDUP_TOLERANCE = 1e-3  # [m/s^2] achieved acceleration this far short of the c
 def force_of_accel(a: float) -> float:
     """Invert the simulator's force map: acceleration [m/s^2] to u in [-1, 1]."""
     u = a / A_MAX if a >= 0.0 else -a / A_MIN
-    return min(1.0, max(-1.0, u))
+    return _clip(u, -1.0, 1.0)
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    """``x`` within [lo, hi]: np.clip's number for a float, at a tenth of its cost per decision."""
+    return min(hi, max(lo, x))
 
 
 class ActionType(Protocol):
@@ -137,11 +142,11 @@ class ForceSteps(HeldForce):
     def imitate(self, u: float, hard_brake: float = 0.0) -> int:
         """The step that brings the held force nearest a teacher's force ``u``."""
         nominal = [self.u + d for d in FORCE_STEPS]
-        return _nearest([float(np.clip(f, -1.0, 1.0)) for f in nominal], nominal, u)
+        return _nearest([_clip(f, -1.0, 1.0) for f in nominal], nominal, u)
 
     def force(self, action: int) -> float:
         # rounded to the 0.02 grid, so that a long run of steps never drifts off it
-        self.u = float(np.clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0))
+        self.u = _clip(round(self.u + FORCE_STEPS[action], 2), -1.0, 1.0)
         return self.u
 
 
@@ -154,7 +159,7 @@ class ForceRamp(HeldForce):
     def _toward(self, target: float) -> float:
         """The force one ramp step gives toward ``target`` from the one held now (rounded to
         0.01, so that a long run of ramps never drifts off the levels)."""
-        return round(self.u + float(np.clip(target - self.u, -RAMP_RATE, RAMP_RATE)), 2)
+        return round(self.u + _clip(target - self.u, -RAMP_RATE, RAMP_RATE), 2)
 
     def _next(self, action: int) -> float:
         """The force ``action`` gives from the one held now."""
@@ -168,7 +173,7 @@ class ForceRamp(HeldForce):
     def force_toward(self, target: float) -> float:
         """Ramp the held force toward a target between the levels (the mean decision,
         :mod:`agent_client.rl.policy`); never an emergency brake, which only its level gives."""
-        self.u = self._toward(float(np.clip(target, -1.0, 1.0)))
+        self.u = self._toward(_clip(float(target), -1.0, 1.0))
         return self.u
 
     def imitate(self, u: float, hard_brake: float = 0.0) -> int:

@@ -149,13 +149,13 @@ def preprocess(image: np.ndarray, zoom: int = 1) -> np.ndarray:
     if zoom == 2:
         if hw != (400, 400):
             raise ValueError(f"zoom 2 needs the full 400x400 frame, got {hw[0]}x{hw[1]}")
-        out = np.ascontiguousarray(_gray(img[ROW0_400:ROW0_400 + FRAME_H, COL0_400:COL0_400 + FRAME_W]))
-        return cv2.bitwise_and(out, MASKS[2])
+        # OpenCV reads the window as a view: the masked result is the only copy
+        return cv2.bitwise_and(_gray(img[ROW0_400:ROW0_400 + FRAME_H, COL0_400:COL0_400 + FRAME_W]), MASKS[2])
     if hw == (400, 400):
         win = img[2 * ROW0:, 2 * COL0:2 * (COL0 + FRAME_W)]
         out = cv2.resize(_gray(win), (FRAME_W, FRAME_H), interpolation=cv2.INTER_AREA)
     elif hw == (200, 200):
-        out = np.ascontiguousarray(_gray(img[ROW0:, COL0:COL0 + FRAME_W]))
+        out = _gray(img[ROW0:, COL0:COL0 + FRAME_W])  # a view (see zoom 2)
     else:
         raise ValueError(f"expected a 400x400 or 200x200 frame, got {hw[0]}x{hw[1]}")
     return cv2.bitwise_and(out, MASK)

@@ -19,19 +19,20 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
 from agent_client.controllers.ddqn import DDQNController
-from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.preprocess import FRAME_H, FRAME_W, camera_size
 from agent_client.rl.config import Config
 from agent_client.rl.network import QNetwork, batch_of_one
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
 
-__all__ = ["decision_latency", "training_rate", "replay_bytes_per_transition", "run", "latency", "one_torch_thread"]
+__all__ = ["decision_latency", "model_decision_latency", "training_rate", "replay_bytes_per_transition", "run", "latency", "one_torch_thread"]
 
 WARMUP = 20  # untimed calls before a latency's repeats
 
@@ -59,20 +60,43 @@ def latency(call: Callable[[], object], repeats: int) -> dict[str, float]:
     return {"median_s": float(np.median(times)), "p90_s": float(np.percentile(times, 90))}
 
 
-def decision_latency(q: QNetwork | None = None, repeats: int = 300) -> dict[str, float]:
-    """Median and p90 [s] from a received frame to the chosen action, one CPU thread; and
+def decision_latency(q: QNetwork | None = None, repeats: int = 300, cfg: Config | None = None) -> dict[str, float]:
+    """Median and p90 [s] from a received frame to the chosen force, one CPU thread; and
     ``forward_median_s``, the network's batch-1 forward alone on the same stack (what is
-    left for decoding, preprocessing, stacking and the decision rule is the difference)."""
+    left for decoding, preprocessing, stacking and the decision rule is the difference).
+
+    Args:
+        q: the network (default: a fresh one of the shipped width, the paper's action set).
+        repeats: decisions timed.
+        cfg: its config (default ``Config()``): the camera frame follows its zoom, and a
+            network that observes its controls gets the acceleration and the set speed too,
+            so a shipped eco model is timed on its whole path (the mean decision included).
+    """
+    cfg = cfg if cfg is not None else Config()
     with one_torch_thread():
-        ctl = DDQNController((q if q is not None else QNetwork()).cpu(), Config())
-        image = np.random.default_rng(0).integers(0, 256, (200, 200), dtype=np.uint8)
-        obs = {"image": image.tobytes(), "image_shape": [200, 200, 1], "v_host": 30.0}
+        ctl = DDQNController((q if q is not None else QNetwork.of(cfg)).cpu(), cfg)
+        width, height = camera_size(cfg.zoom)
+        image = np.random.default_rng(0).integers(0, 256, (height, width), dtype=np.uint8)
+        obs = {"image": image.tobytes(), "image_shape": [height, width, 1], "v_host": 30.0, "accel": 0.0, "set_speed": cfg.set_speed}
         whole = latency(lambda: ctl(obs), repeats)
         stacked = ctl.warm(obs)
         inputs = batch_of_one(ctl.q, stacked["frames"].clone(), stacked["speeds"], stacked.get("controls"))
         with torch.inference_mode():
             forward = latency(lambda: ctl.q(*inputs), repeats)
         return {**whole, "forward_median_s": forward["median_s"]}
+
+
+def model_decision_latency(path: str | Path, repeats: int = 300) -> dict[str, Any]:
+    """:func:`decision_latency` of a saved model (its network, zoom, controls and decision
+    rule), with ``model``, its file name; ``{"error": ...}`` where it cannot be loaded."""
+    from agent_client.errors import InputFileError
+    from agent_client.rl.checkpoint import load_policy
+
+    try:
+        q, cfg = load_policy(path)
+    except InputFileError as e:
+        return {"error": str(e)}
+    return {**decision_latency(q, repeats, cfg), "model": Path(path).name, "decision": cfg.decision}
 
 
 def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule) -> dict[str, float]:

@@ -8,6 +8,7 @@ compute the same numbers to the last digit.
 from __future__ import annotations
 
 import copy as _copy
+import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -32,6 +33,9 @@ GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
 GAP_HEAD_RANGE = (1.0, 150.0)  # [m] the gap head's target is clipped to this: beyond 150 m only "far" matters
 CLOSING_HEAD_SCALE = 5.0  # [m/s] the closing head's output is the closing speed over this
 CLOSING_HEAD_RANGE = 20.0  # [m/s] its target is clipped to +-this (a car cutting in jumps the gap)
+
+
+_FRAME_SCALE = np.float32(255.0)  # scale_frames' divisor, for numpy (float32 division, as torch's)
 
 
 def scale_frames(frames: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
@@ -181,7 +185,8 @@ class QNetwork(nn.Module):
         elif controls is None:
             raise ValueError("this network observes its controls (force, set speed); none were given")
         else:
-            c = (controls.float() / self._control_scale.to(controls.device)).flatten(1)  # [B, S * C]
+            scale = self._control_scale if controls.device.type == "cpu" else self._control_scale.to(controls.device)
+            c = (controls.float() / scale).flatten(1)  # [B, S * C]
             z = torch.cat([x, v, c], dim=1)
         hidden = self._linears[0]
         return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
@@ -191,8 +196,11 @@ def batch_of_one(q: QNetwork, frames: np.ndarray | torch.Tensor, speeds: np.ndar
     """One stacked observation as the network's inputs: a batch of one on its device
     (frames uint8, or scaled as :class:`ScaledFrames` keeps them)."""
     device = q.device
-    c = torch.from_numpy(controls).to(device)[None] if controls is not None else None
-    return torch.as_tensor(frames).to(device)[None], torch.from_numpy(speeds).to(device)[None], c
+    c = None if controls is None else torch.from_numpy(controls)[None]
+    f, v = torch.as_tensor(frames)[None], torch.from_numpy(speeds)[None]
+    if device.type == "cpu":  # already there: skip three no-op dispatches, a twentieth of a decision
+        return f, v, c
+    return f.to(device), v.to(device), None if c is None else c.to(device)
 
 
 class ScaledFrames:
@@ -214,7 +222,10 @@ class ScaledFrames:
         self._span = (frame_stack - 1) * stack_stride + 1  # frames a full stack spans
         self._rings = rings = torch.empty((stack_stride, 2 * frame_stack, FRAME_H, FRAME_W))
         # every view made once: indexing a tensor from Python costs microseconds a decision
-        self._slots = [[(rings[r, k], rings[r, k + frame_stack]) for k in range(frame_stack)] for r in range(stack_stride)]
+        # numpy views of the slots: numpy's uint8 / float32 is torch's to the bit, and costs
+        # half of torch.div(out=) and copy_ right after a forward has left the caches cold
+        arrays = rings.numpy()
+        self._slots = [[(arrays[r, k], arrays[r, k + frame_stack]) for k in range(frame_stack)] for r in range(stack_stride)]
         self._stacks = [[rings[r, k + 1 : k + frame_stack + 1] for k in range(frame_stack)] for r in range(stack_stride)]
         self._pushed = 0
 
@@ -229,7 +240,8 @@ class ScaledFrames:
         i = self._pushed
         ring, slot = i % stride, (i // stride) % n
         first, second = self._slots[ring][slot]
-        second.copy_(scale_frames(torch.from_numpy(frame), out=first))
+        np.divide(frame, _FRAME_SCALE, out=first)  # scale_frames, in numpy (see __init__)
+        second[...] = first
         self._pushed += 1
         if self._pushed >= self._span:  # the stack is this ring's last n frames
             return self._stacks[ring][slot]
@@ -299,12 +311,8 @@ class Policy:
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
         self.deadband, self.smoothing = float(deadband), float(smoothing)
         self.brake_confirm, self._share_streak = int(brake_confirm), 0  # decisions in a row at the brake share
-        keep = torch.ones(len(levels), dtype=torch.bool)
-        if len(levels):
-            keep[EMERGENCY_LEVEL] = False
-        self._keep = keep
         self._all_levels = tuple(float(x) for x in levels)
-        self._levels = torch.tensor(levels, dtype=torch.float64)[keep]
+        self._levels = self._all_levels[:EMERGENCY_LEVEL] + self._all_levels[EMERGENCY_LEVEL + 1 :]
 
     @classmethod
     def of(cls, q: QNetwork, cfg: Any) -> Policy:
@@ -337,18 +345,22 @@ class Policy:
         deadband and the smoothing read the held force there); the same as :meth:`__call__`'s."""
         if self.decision == "argmax":
             return Decision(int(out.argmax().item()))
-        out = out.cpu().double()  # the mean in float64 on the CPU, the same on any device
-        action = int(out.argmax().item())
+        # In plain Python floats: 21 numbers cost less here than a tensor op's dispatch, and
+        # math.fsum makes each sum exact, so the target is the same on any machine.
+        out_ = out.tolist()  # float64, exactly the outputs
+        action = max(range(len(out_)), key=out_.__getitem__)  # the first of equal maxima, as argmax
         if action == EMERGENCY_LEVEL:
             self._share_streak += 1  # a full brake in progress: a share that follows goes on braking
             return Decision(action)
+        top, t = out_[action], self.temperature
+        weights = [math.exp((x - top) / t) for x in out_]  # the softmax's, before normalising
         if self.brake_share < 1.0:
-            at_share = float(torch.softmax(out / self.temperature, dim=0)[EMERGENCY_LEVEL]) >= self.brake_share
+            at_share = weights[EMERGENCY_LEVEL] / math.fsum(weights) >= self.brake_share
             self._share_streak = self._share_streak + 1 if at_share else 0
             if self._share_streak >= self.brake_confirm:
                 return Decision(EMERGENCY_LEVEL)
-        p = torch.softmax(out[self._keep] / self.temperature, dim=0)
-        target = float(p @ self._levels)
+        del weights[EMERGENCY_LEVEL]  # the mean leaves the full brake out
+        target = math.fsum(w * level for w, level in zip(weights, self._levels, strict=True)) / math.fsum(weights)
         if self._all_levels[action] <= -FIRM_BRAKE:  # unsure how hard to brake: the harder
             target = min(target, self._all_levels[action])
         if self.deadband > 0.0 or self.smoothing < 1.0:

@@ -30,6 +30,9 @@ def test_quick_bench_reports_every_figure(tmp_path):
     # each training row measures the schedule its label names (the serial row once ran the parallel one)
     assert (figures["ddqn_training"]["schedule"], figures["ddqn_training_parallel"]["schedule"]) == ("serial", "parallel")
     assert 0 < figures["decision_latency"]["forward_ms"] < 2 * figures["decision_latency"]["ms"]["median"]  # a part of the decision, measured apart
+    eco = figures["eco_decision_latency"]  # the shipped eco model's whole path
+    assert eco["model"] == "ice-eco.pt" and 0 < eco["forward_ms"] < 2 * eco["ms"]["median"]
+    assert "the shipped ice-eco.pt" in result.stdout
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
@@ -72,3 +75,13 @@ def test_scaling_bench_has_a_window_only_after_every_actor_delivered_often():
     long = acting_rate(2, 2 * Config.actor_batch * MIN_DELIVERIES)
     assert "window" not in long and long["window_steps_per_s"] > 0 and long["cores_used"] > 0
     assert long["run_steps_per_s"] <= long["env_steps_per_s"]  # the whole run includes the start-up
+
+
+def test_a_model_the_bench_cannot_load_is_a_row_that_says_why(tmp_path):
+    from agent_client.bench.ddqn import model_decision_latency
+
+    bad = tmp_path / "ice-eco.pt"
+    bad.write_bytes(b"not a checkpoint")
+    row = model_decision_latency(bad, repeats=1)
+    assert set(row) == {"error"} and "ice-eco.pt" in row["error"]
+    assert set(model_decision_latency(tmp_path / "absent.pt", repeats=1)) == {"error"}

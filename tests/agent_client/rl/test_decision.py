@@ -69,6 +69,24 @@ def test_the_mean_decision_is_the_softmax_weighted_level_without_the_full_brake(
     assert hot == pytest.approx(float(np.mean(FINE_LEVELS[1:])))  # a hot one averages them all
 
 
+def test_the_mean_decision_matches_torchs_softmax_and_argmax_on_many_outputs():
+    # decide() computes in Python floats (cheaper per decision than tensor ops); it must pick
+    # torch.argmax's action (the first of equal maxima) and torch.softmax's target.
+    rng = np.random.default_rng(3)
+    policy = Policy(QNetwork(n_actions=len(FINE_LEVELS), n_controls=2), "mean", FINE_LEVELS, 2.0)
+    levels = torch.tensor(FINE_LEVELS[1:], dtype=torch.float64)
+    outs = torch.from_numpy(rng.normal(0.0, 3.0, (2000, len(FINE_LEVELS))).astype(np.float32))
+    outs[::5, 7] = outs[::5, 3] = 50.0  # equal maxima: the first is the action
+    for out in outs:
+        d = policy.decide(out)
+        assert d.action == int(torch.argmax(out))
+        if d.target is not None:
+            expected = float(torch.softmax(out.double()[1:] / 2.0, dim=0) @ levels)
+            if FINE_LEVELS[d.action] <= -FIRM_BRAKE:  # a firm argmax brake: the target no softer
+                expected = min(expected, FINE_LEVELS[d.action])
+            assert d.target == pytest.approx(expected, abs=1e-12)
+
+
 def test_the_full_brake_acts_at_once_where_it_is_the_argmax():
     logits = [0.0] * len(FINE_LEVELS)
     logits[EMERGENCY_LEVEL] = 3.0
