@@ -51,6 +51,8 @@ __all__ = [
     "digest",
     "with_decision",
     "average_policies",
+    "narrow_policy",
+    "export_policy",
     "POLICY_FIELDS",
 ]
 
@@ -356,6 +358,70 @@ def average_policies(srcs: list[str | Path], dst: str | Path, weights: list[floa
     return cfg
 
 
+def _keep(importance: torch.Tensor, n: int) -> torch.Tensor:
+    """The indices of the ``n`` largest importances, in their original order."""
+    return importance.topk(n).indices.sort().values
+
+
+def narrow_policy(src: str | Path, dst: str | Path, conv_channels: tuple[int, int, int], hidden: int) -> Config:
+    """Write ``src``'s network cut down to ``conv_channels`` and ``hidden`` units as the new
+    policy ``dst``: the start of a distillation into a faster network (``vacc train --teacher
+    policy --init-from DST``) that keeps the teacher's strongest features instead of none.
+
+    Each layer keeps the units whose weights in and out have the largest product of L2
+    norms (magnitude pruning of whole channels, Li et al. 2017), in their order; the layers
+    after it read only those. Cut so, the network computes something else: it must be trained.
+
+    Returns:
+        The new policy's config (``src``'s, with the new widths).
+
+    Raises:
+        InputFileError: ``src`` unreadable, a width larger than ``src``'s or below 1, or
+            ``dst`` exists.
+        CheckpointWriteError: the write failed.
+    """
+    if Path(dst).exists():
+        raise InputFileError(f"{dst}: exists; give a new file for the narrowed policy")
+    q, cfg = load_policy(src)
+    old = (*(c.out_channels for c in q._convs), q._linears[0].out_features)
+    new = (*conv_channels, hidden)
+    if len(new) != 4 or not all(1 <= n <= o for n, o in zip(new, old, strict=True)):
+        raise InputFileError(f"{src}: its widths are {old[:3]}, {old[3]}; narrowing needs each new width from 1 to that, got {tuple(new[:-1])}, {hidden}")
+    sd = {k: v.detach() for k, v in q.state_dict().items()}
+    convs = [f"conv.{i}" for i in (0, 2, 4)]
+    fc1, fc2 = "fc.0", "fc.2"
+    heads = [h for h in ("gap_head", "closing_head") if f"{h}.weight" in sd]
+    n_conv = sd[f"{fc1}.weight"].shape[1] - cfg.frame_stack * (1 + q.n_controls)  # flattened conv features
+    spatial = n_conv // old[2]  # fc1 columns per conv3 channel (channel-major, as flatten lays them)
+    fc1_by_channel = sd[f"{fc1}.weight"][:, :n_conv].reshape(old[3], old[2], spatial)
+    outgoing = [sd[f"{convs[1]}.weight"], sd[f"{convs[2]}.weight"], fc1_by_channel]
+    keeps = []
+    for i, name in enumerate(convs):
+        w_in = sd[f"{name}.weight"].flatten(1).norm(dim=1)
+        w_out = outgoing[i].transpose(0, 1).flatten(1).norm(dim=1)
+        keeps.append(_keep(w_in * w_out, conv_channels[i]))
+    out_w = torch.cat([sd[f"{fc2}.weight"], *(sd[f"{h}.weight"] for h in heads)])
+    keep_h = _keep(sd[f"{fc1}.weight"].norm(dim=1) * out_w.norm(dim=0), hidden)
+    state = dict(sd)
+    prev: torch.Tensor | None = None
+    for name, keep in zip(convs, keeps, strict=True):
+        w = sd[f"{name}.weight"][keep]
+        state[f"{name}.weight"] = w if prev is None else w[:, prev]
+        state[f"{name}.bias"] = sd[f"{name}.bias"][keep]
+        prev = keep
+    conv_cols = (keeps[2][:, None] * spatial + torch.arange(spatial)).flatten()  # the kept channels' columns
+    cols = torch.cat([conv_cols, torch.arange(n_conv, sd[f"{fc1}.weight"].shape[1])])  # and the speeds, controls
+    state[f"{fc1}.weight"] = sd[f"{fc1}.weight"][keep_h][:, cols]
+    state[f"{fc1}.bias"] = sd[f"{fc1}.bias"][keep_h]
+    for name in (fc2, *heads):
+        state[f"{name}.weight"] = sd[f"{name}.weight"][:, keep_h]
+    narrow_cfg = dataclasses.replace(cfg, conv_channels=tuple(conv_channels), hidden=hidden)
+    narrow = QNetwork.of(narrow_cfg)
+    load_weights(narrow, {k: v.clone() for k, v in state.items()}, src)
+    save_policy(narrow, narrow_cfg, dst, {"narrowed_from": str(src), "widths_from": list(old)})
+    return narrow_cfg
+
+
 def export_policy(src: str | Path, dst: str | Path) -> int:
     """Write the weights and settings of the checkpoint ``src`` (a training run's ``latest.pt``,
     or a policy) as a policy-only file ``dst``, as the trainer writes ``best.pt``.
@@ -401,6 +467,12 @@ def _main(argv: list[str]) -> None:
     pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
     pol.add_argument("src", metavar="SRC.pt")
     pol.add_argument("dst", metavar="DST.pt", help="a new file")
+    nar = sub.add_parser("narrow", help="Write a policy cut down to fewer channels and hidden units (a start for distilling it; it must be trained).")
+    nar.add_argument("src", metavar="SRC.pt")
+    nar.add_argument("dst", metavar="DST.pt", help="a new file")
+    nar.add_argument("--conv-channels", required=True, type=lambda t: tuple(int(x) for x in t.split(",")), metavar="C1,C2,C3",
+                     help="the three convolutions' channels, each at most SRC's")
+    nar.add_argument("--hidden", required=True, type=int, help="the hidden layer's units, at most SRC's")
     avg = sub.add_parser("average", help="Write the mean of the weights of policies fine-tuned from one start (a model soup).")
     avg.add_argument("srcs", nargs="+", metavar="SRC.pt", help="two or more policies that see and act alike")
     avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
@@ -414,6 +486,9 @@ def _main(argv: list[str]) -> None:
         elif a.command == "average":
             average_policies(a.srcs, a.out, a.weights)
             print(f"{a.out}: the {'weighted ' if a.weights else ''}mean of {len(a.srcs)} policies")
+        elif a.command == "narrow":
+            cfg = narrow_policy(a.src, a.dst, a.conv_channels, a.hidden)
+            print(f"{a.dst}: conv {'/'.join(map(str, cfg.conv_channels))}, hidden {cfg.hidden}; train it before driving it")
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
@@ -425,7 +500,7 @@ def _main(argv: list[str]) -> None:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")
 
 
-if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy,average} ...
+if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy,average,narrow} ...
     import sys
 
     _main(sys.argv[1:])

@@ -117,3 +117,66 @@ def test_init_from_a_network_of_another_width_is_refused_in_one_line(tmp_path):
     assert result.exit_code == 1 and result.exception is not None and isinstance(result.exception, SystemExit)
     last = result.output.strip().splitlines()[-1]
     assert "16,32,64 channels and 256 hidden units, this run's 8,16,32 and 128" in last and "--teacher policy" in last
+
+
+def _inputs(n: int = 4) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    rng = np.random.default_rng(5)
+    frames = torch.from_numpy(rng.integers(0, 256, (n, 8, FRAME_H, FRAME_W), dtype=np.uint8))
+    return frames, torch.full((n, 8), 25.0), torch.tensor([0.1, 33.5]).expand(n, 8, 2)
+
+
+def test_narrowing_to_the_same_widths_is_the_same_network(tmp_path):
+    from agent_client.rl.checkpoint import narrow_policy
+
+    q, _ = load_policy(TEACHER)
+    narrow_policy(TEACHER, tmp_path / "same.pt", (16, 32, 64), 256)
+    same, _ = load_policy(tmp_path / "same.pt")
+    with torch.inference_mode():
+        assert torch.equal(q(*_inputs()), same(*_inputs()))
+
+
+def test_narrowing_drops_the_weakest_units_and_the_columns_that_read_them(tmp_path):
+    # Units whose weights in and out are zero contribute nothing: cut exactly those, and the
+    # narrow network computes what the wide one did (to rounding: fewer terms in each sum).
+    from agent_client.rl.checkpoint import narrow_policy, save_policy
+
+    wide, cfg = load_policy(TEACHER)
+    dead = {"conv.0": [1, 4, 6, 9, 10, 12, 13, 15], "conv.2": list(range(0, 32, 4)), "conv.4": list(range(1, 64, 2))}
+    reads = {"conv.0": "conv.2", "conv.2": "conv.4"}
+    with torch.no_grad():
+        sd = wide.state_dict()
+        for name, units in dead.items():
+            sd[f"{name}.weight"][units] = 0.0
+            sd[f"{name}.bias"][units] = 0.0
+            if name in reads:
+                sd[f"{reads[name]}.weight"][:, units] = 0.0
+        spatial = (sd["fc.0.weight"].shape[1] - 8 * 3) // 64
+        for c in dead["conv.4"]:
+            sd["fc.0.weight"][:, c * spatial : (c + 1) * spatial] = 0.0
+        hidden_dead = list(range(0, 256, 2))
+        sd["fc.0.weight"][hidden_dead] = 0.0
+        sd["fc.0.bias"][hidden_dead] = 0.0
+        sd["fc.2.weight"][:, hidden_dead] = 0.0
+    save_policy(wide, cfg, tmp_path / "wide.pt")
+    out = narrow_policy(tmp_path / "wide.pt", tmp_path / "narrow.pt", (8, 24, 32), 128)
+    assert (out.conv_channels, out.hidden) == ((8, 24, 32), 128)
+    narrow, ncfg = load_policy(tmp_path / "narrow.pt")
+    assert ncfg.conv_channels == (8, 24, 32) and narrow.fc[0].weight.shape == (128, 32 * spatial + 24)
+    with torch.inference_mode():
+        torch.testing.assert_close(narrow(*_inputs()), wide(*_inputs()), rtol=0, atol=1e-5)
+
+
+def test_narrowing_refuses_a_wider_network_and_an_existing_file(tmp_path, capsys):
+    from agent_client.rl.checkpoint import _main
+
+    (tmp_path / "there.pt").write_bytes(b"")
+    for args, words in ((["--conv-channels", "16,64,64", "--hidden", "128"], "narrowing needs each new width from 1"),
+                        (["--conv-channels", "8,16,32", "--hidden", "0"], "narrowing needs each new width from 1")):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            _main(["narrow", TEACHER, str(tmp_path / "n.pt"), *args])
+        assert e.value.code == 2 and words in capsys.readouterr().err
+    with pytest.raises(InputFileError, match="exists"):
+        from agent_client.rl.checkpoint import narrow_policy
+
+        narrow_policy(TEACHER, tmp_path / "there.pt", (8, 16, 32), 128)
+    assert not (tmp_path / "n.pt").exists()
