@@ -442,6 +442,17 @@ def export_policy(src: str | Path, dst: str | Path) -> int:
     return step
 
 
+def _three_widths(text: str) -> tuple[int, int, int]:
+    """``narrow --conv-channels``: three whole numbers, comma-separated."""
+    import argparse
+
+    parts = text.split(",")
+    if len(parts) != 3 or not all(p.strip().isdigit() for p in parts):
+        raise argparse.ArgumentTypeError(f"want three whole numbers such as 8,16,32, got {text!r}")
+    a, b, c = (int(p) for p in parts)
+    return a, b, c
+
+
 def _main(argv: list[str]) -> None:
     import argparse
 
@@ -470,7 +481,7 @@ def _main(argv: list[str]) -> None:
     nar = sub.add_parser("narrow", help="Write a policy cut down to fewer channels and hidden units (a start for distilling it; it must be trained).")
     nar.add_argument("src", metavar="SRC.pt")
     nar.add_argument("dst", metavar="DST.pt", help="a new file")
-    nar.add_argument("--conv-channels", required=True, type=lambda t: tuple(int(x) for x in t.split(",")), metavar="C1,C2,C3",
+    nar.add_argument("--conv-channels", required=True, type=_three_widths, metavar="C1,C2,C3",
                      help="the three convolutions' channels, each at most SRC's")
     nar.add_argument("--hidden", required=True, type=int, help="the hidden layer's units, at most SRC's")
     avg = sub.add_parser("average", help="Write the mean of the weights of policies fine-tuned from one start (a model soup).")

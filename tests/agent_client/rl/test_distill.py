@@ -171,7 +171,9 @@ def test_narrowing_refuses_a_wider_network_and_an_existing_file(tmp_path, capsys
 
     (tmp_path / "there.pt").write_bytes(b"")
     for args, words in ((["--conv-channels", "16,64,64", "--hidden", "128"], "narrowing needs each new width from 1"),
-                        (["--conv-channels", "8,16,32", "--hidden", "0"], "narrowing needs each new width from 1")):  # fmt: skip
+                        (["--conv-channels", "8,16,32", "--hidden", "0"], "narrowing needs each new width from 1"),
+                        (["--conv-channels", "8,16", "--hidden", "128"], "want three whole numbers such as 8,16,32, got '8,16'"),
+                        (["--conv-channels", "8,a,32", "--hidden", "128"], "want three whole numbers such as 8,16,32, got '8,a,32'")):  # fmt: skip
         with pytest.raises(SystemExit) as e:
             _main(["narrow", TEACHER, str(tmp_path / "n.pt"), *args])
         assert e.value.code == 2 and words in capsys.readouterr().err
