@@ -248,10 +248,11 @@ def upgrade(path: str | Path) -> bool:
 
 def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: float | None = None,
                   brake_share: float | None = None, deadband: float | None = None, smoothing: float | None = None,
-                  brake_confirm: int | None = None) -> Config:
+                  brake_confirm: int | None = None, full_brake_confirm: int | None = None) -> Config:
     """Write a copy of the policy ``src`` to the new file ``dst`` with another decision rule
     (``Config.decision``, and ``decision_temperature``, ``decision_brake_share``,
-    ``decision_brake_confirm``, ``decision_deadband`` and ``decision_smoothing`` if given);
+    ``decision_brake_confirm``, ``decision_full_brake_confirm``, ``decision_deadband`` and
+    ``decision_smoothing`` if given);
     weights unchanged.
 
     Returns:
@@ -271,9 +272,11 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     deadband = cfg.decision_deadband if deadband is None else deadband
     smoothing = cfg.decision_smoothing if smoothing is None else smoothing
     brake_confirm = cfg.decision_brake_confirm if brake_confirm is None else brake_confirm
+    full_brake_confirm = cfg.decision_full_brake_confirm if full_brake_confirm is None else full_brake_confirm
     try:
         cfg = dataclasses.replace(cfg, decision=decision, decision_temperature=temperature, decision_brake_share=brake_share,
-                                  decision_deadband=deadband, decision_smoothing=smoothing, decision_brake_confirm=brake_confirm)
+                                  decision_deadband=deadband, decision_smoothing=smoothing, decision_brake_confirm=brake_confirm,
+                                  decision_full_brake_confirm=full_brake_confirm)
     except ValueError as exc:
         raise InputFileError(f"{src}: {exc}") from None
     ckpt["config"] = config_dict(cfg)
@@ -283,7 +286,7 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
 
 POLICY_FIELDS = ("scenario", "action", "zoom", "frame_stack", "stack_stride", "speed_scale", "decision",
                  "decision_temperature", "decision_brake_share", "decision_deadband",
-                 "decision_smoothing", "decision_brake_confirm")
+                 "decision_smoothing", "decision_brake_confirm", "decision_full_brake_confirm")
 """The settings that decide what a policy sees and how it acts: averaged policies must agree on them.
 (The set speed and the pre-roll only shape training episodes; a drive takes both from its own options.)"""
 
@@ -471,6 +474,9 @@ def _main(argv: list[str]) -> None:
                      help="the mean decision's full-brake share that brakes at once (Config.decision_brake_share; default: the checkpoint's)")
     dec.add_argument("--brake-confirm", type=int, default=None, metavar="N",
                      help="decisions in a row at the brake share before it brakes fully (Config.decision_brake_confirm; default: the checkpoint's)")
+    dec.add_argument("--full-brake-confirm", type=int, default=None, metavar="N",
+                     help="decisions in a row with the full brake the argmax before it acts at once; until then the ramp "
+                          "heads for it (Config.decision_full_brake_confirm; default: the checkpoint's)")
     dec.add_argument("--deadband", type=float, default=None,
                      help="force within which the mean decision keeps the held force (Config.decision_deadband; default: the checkpoint's)")
     dec.add_argument("--smoothing", type=float, default=None,
@@ -503,9 +509,10 @@ def _main(argv: list[str]) -> None:
         elif a.command == "policy":
             print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
         else:
-            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband, a.smoothing, a.brake_confirm)
+            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband, a.smoothing, a.brake_confirm,
+                                a.full_brake_confirm)
             print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}, brake share {cfg.decision_brake_share:g} "
-                  f"(confirmed in {cfg.decision_brake_confirm}), "
+                  f"(confirmed in {cfg.decision_brake_confirm}), the argmax's full brake confirmed in {cfg.decision_full_brake_confirm}, "
                   f"deadband {cfg.decision_deadband:g}, smoothing {cfg.decision_smoothing:g}")
     except ClientError as exc:
         ap.exit(2, f"{ap.prog}: error: {exc}\n")

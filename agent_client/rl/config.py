@@ -292,6 +292,12 @@ class Config:
     still acts at once). A camera student's phantom brake is often one decision long, but
     the ramp releases it at RAMP_RATE a step, so it costs a second of full braking; a second
     decision in a row confirms a real threat 0.1 s later. 1: at once."""
+    decision_full_brake_confirm: int = 1
+    """(decision mean) decisions in a row whose argmax must be the full brake before it acts
+    at once; until then the held force ramps toward it (RAMP_RATE a step). A narrow
+    student's phantom brake was its argmax for one decision only (docs/training.md, r40),
+    and a full brake is released at RAMP_RATE a step, so one false decision costs 2.5 s of
+    braking; a second in a row brakes fully 0.1 s later. 1: at once."""
     decision_deadband: float = 0.0
     """(decision mean) where the mean's target lies within this much force of the held one,
     the held force stays (a brake of FIRM_BRAKE or more is never held back). An ablation:
@@ -388,6 +394,10 @@ class Config:
             raise bad("decision_brake_confirm", f"must be >= 1, got {self.decision_brake_confirm}")
         if self.decision_brake_confirm > 1 and self.decision_brake_share >= 1.0:
             raise bad("decision_brake_confirm", "confirms the brake share's full brake: it needs decision_brake_share below 1")
+        if self.decision_full_brake_confirm < 1:
+            raise bad("decision_full_brake_confirm", f"must be >= 1, got {self.decision_full_brake_confirm}")
+        if self.decision_full_brake_confirm > 1 and self.decision != "mean":
+            raise bad("decision_full_brake_confirm", "it ramps toward an unconfirmed full brake: it needs decision 'mean'")
         if self.decision_brake_share < 1.0 and self.decision != "mean":
             raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
         if not self.train_trajectories:

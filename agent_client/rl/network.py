@@ -297,12 +297,16 @@ class Policy:
         brake_share: the full brake's softmax share that brakes fully (the mean decision; 1: only the argmax).
         brake_confirm: decisions in a row that must reach ``brake_share`` (1: at once). The
             count is state: :meth:`reset` it with each episode, or decide with a :meth:`fresh` copy.
+        full_brake_confirm: decisions in a row whose argmax must be the full brake before it
+            acts at once (the mean decision; 1: at once); until then the target is the full
+            brake, through the ramp. State, as ``brake_confirm``'s.
         deadband: force within which the held force stays (the mean decision; 0: off).
         smoothing: the share of the way to the target asked each step (the mean decision; 1: off).
     """
 
     def __init__(self, q: QNetwork, decision: str = "argmax", levels: Sequence[float] = (), temperature: float = 1.0,
-                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0, brake_confirm: int = 1):
+                 brake_share: float = 1.0, deadband: float = 0.0, smoothing: float = 1.0, brake_confirm: int = 1,
+                 full_brake_confirm: int = 1):
         if decision not in DECISIONS:
             raise ValueError(f"decision {decision!r} is not one of {DECISIONS}")
         n_out = q.fc[-1].out_features
@@ -311,6 +315,7 @@ class Policy:
         self.q, self.decision, self.temperature, self.brake_share = q, decision, float(temperature), float(brake_share)
         self.deadband, self.smoothing = float(deadband), float(smoothing)
         self.brake_confirm, self._share_streak = int(brake_confirm), 0  # decisions in a row at the brake share
+        self.full_brake_confirm, self._full_streak = int(full_brake_confirm), 0  # decisions in a row with the full brake the argmax
         self._all_levels = tuple(float(x) for x in levels)
         self._levels = self._all_levels[:EMERGENCY_LEVEL] + self._all_levels[EMERGENCY_LEVEL + 1 :]
 
@@ -319,11 +324,11 @@ class Policy:
         """The policy a :class:`~agent_client.rl.config.Config` describes."""
         levels = getattr(make_action_type(cfg.action), "levels", ())
         return cls(q, cfg.decision, levels if cfg.decision == "mean" else (), cfg.decision_temperature, cfg.decision_brake_share,
-                   cfg.decision_deadband, cfg.decision_smoothing, cfg.decision_brake_confirm)
+                   cfg.decision_deadband, cfg.decision_smoothing, cfg.decision_brake_confirm, cfg.decision_full_brake_confirm)
 
     def reset(self) -> None:
-        """Start an episode: forget the decisions in a row at the brake share."""
-        self._share_streak = 0
+        """Start an episode: forget the decisions in a row at the brake share or the full brake."""
+        self._share_streak = self._full_streak = 0
 
     def fresh(self) -> Policy:
         """A copy for one episode (the same network and rule, its own state)."""
@@ -349,7 +354,8 @@ class Policy:
         # math.fsum makes each sum exact, so the target is the same on any machine.
         out_ = out.tolist()  # float64, exactly the outputs
         action = max(range(len(out_)), key=out_.__getitem__)  # the first of equal maxima, as argmax
-        if action == EMERGENCY_LEVEL:
+        self._full_streak = self._full_streak + 1 if action == EMERGENCY_LEVEL else 0
+        if self._full_streak >= self.full_brake_confirm:
             self._share_streak += 1  # a full brake in progress: a share that follows goes on braking
             return Decision(action)
         top, t = out_[action], self.temperature

@@ -279,9 +279,44 @@ def test_decide_records_the_brake_confirmation(tmp_path):
     src, dst = tmp_path / "student.pt", tmp_path / "confirmed.pt"
     save_policy(QNetwork.of(cfg), cfg, src)
     cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "decide", str(src), str(dst), "--decision", "mean",
-           "--brake-share", "0.1", "--brake-confirm", "2"]  # fmt: skip
+           "--brake-share", "0.1", "--brake-confirm", "2", "--full-brake-confirm", "3"]  # fmt: skip
     done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and "confirmed in 2" in done.stdout, done.stderr
-    assert load_policy(dst)[1].decision_brake_confirm == 2
+    assert done.returncode == 0 and "(confirmed in 2)" in done.stdout and "full brake confirmed in 3" in done.stdout, done.stderr
+    assert load_policy(dst)[1].decision_brake_confirm == 2 and load_policy(dst)[1].decision_full_brake_confirm == 3
     bad = subprocess.run([*cli[:5], str(tmp_path / "bad.pt"), "--decision", "mean", "--brake-confirm", "2"], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "decision_brake_confirm" in bad.stderr and not (tmp_path / "bad.pt").exists()
+
+
+def test_a_confirmed_full_brake_ramps_toward_it_until_the_argmax_repeats_it(tmp_path):
+    # A phantom full brake is often the argmax for one decision: with full_brake_confirm 2,
+    # that decision ramps toward the full brake, and only a second in a row brakes at once.
+    rng = np.random.default_rng(6)
+    sure = [0.0] * len(FINE_LEVELS)
+    sure[EMERGENCY_LEVEL] = 3.0
+    calm = [0.0] * len(FINE_LEVELS)
+    calm[4] = 2.0
+    sure, calm = _fixed_outputs(sure), _fixed_outputs(calm)
+    obs = _obs(rng)
+    policy = Policy(sure, "mean", FINE_LEVELS, 2.0, full_brake_confirm=2)
+    assert policy(obs) == Decision(EMERGENCY_LEVEL, -1.0)  # not yet: the ramp heads for it
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)  # the second in a row: at once
+    assert policy(obs) == Decision(EMERGENCY_LEVEL)
+    policy.reset()
+    assert policy(obs).target == -1.0  # a new episode starts the count over
+    policy.q = calm
+    assert policy(obs).target is not None and policy(obs).action == 4  # another argmax breaks the run
+    policy.q = sure
+    assert policy(obs).target == -1.0
+    held = FineRamp()
+    assert held.force_toward(-1.0) == -RAMP_RATE  # through the ramp, not at once
+    assert Policy(sure, "mean", FINE_LEVELS, 2.0)(obs) == Decision(EMERGENCY_LEVEL)  # the default: at once
+    with pytest.raises(ConfigError) as e:
+        Config(**STUDENT, decision="mean", decision_full_brake_confirm=0)
+    assert e.value.field == "decision_full_brake_confirm"
+    with pytest.raises(ConfigError, match="needs decision 'mean'"):
+        Config(**STUDENT, decision_full_brake_confirm=2)
+    cfg = Config(**STUDENT, decision="mean")
+    save_policy(QNetwork.of(cfg), cfg, tmp_path / "student.pt")
+    assert with_decision(tmp_path / "student.pt", tmp_path / "confirmed.pt", "mean", full_brake_confirm=2).decision_full_brake_confirm == 2
+    assert load_policy(tmp_path / "confirmed.pt")[1].decision_full_brake_confirm == 2
+    assert load_policy(tmp_path / "student.pt")[1].decision_full_brake_confirm == 1
