@@ -60,12 +60,17 @@ def assert_no_servers_left(actor_pids, timeout: float = 15.0) -> None:
     assert servers_of(actor_pids) == [], "simulator servers left behind"
 
 
-def wait_until_both_actors_deliver(run_dir: Path, timeout: float = 120.0) -> None:
-    """Poll ``run_dir/scalars.csv`` until actors 0 and 1 have each delivered a batch."""
+def wait_until_both_actors_deliver(run_dir: Path, timeout: float = 300.0) -> None:
+    """Poll ``run_dir/scalars.csv`` until actors 0 and 1 have each delivered a batch; fail
+    saying so after ``timeout`` s (generous: starting Ray on a loaded 2-core host took
+    over 120 s once, and a silent return then failed the next check for the wrong reason)."""
     deadline = time.monotonic() + timeout
+    seen: set[str] = set()
     while time.monotonic() < deadline:
         path = run_dir / "scalars.csv"
         rows = list(csv.DictReader(open(path))) if path.exists() else []
-        if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= {r["name"] for r in rows}:
+        seen = {r["name"] for r in rows if r["name"].startswith("charts/transitions/actor-")}
+        if {"charts/transitions/actor-0", "charts/transitions/actor-1"} <= seen:
             return
         time.sleep(0.3)
+    raise AssertionError(f"{run_dir}: both actors had not delivered after {timeout:.0f} s (delivered: {sorted(seen) or 'none'})")
