@@ -290,7 +290,7 @@ class Config:
     """(decision mean) decisions in a row whose softmax must give the full brake at least
     ``decision_brake_share`` before the share alone brakes fully (the argmax's full brake
     still acts at once). A camera student's phantom brake is often one decision long, but
-    the ramp releases it at RAMP_RATE a step, so it costs a second of full braking; a second
+    the ramp releases it at RAMP_RATE a step, so it costs 2.5 s of braking; a second
     decision in a row confirms a real threat 0.1 s later. 1: at once."""
     decision_full_brake_confirm: int = 1
     """(decision mean) decisions in a row whose argmax must be the full brake before it acts
