@@ -36,6 +36,7 @@ import argparse
 import csv
 import itertools
 import json
+import math
 import subprocess
 import sys
 from collections import deque
@@ -142,6 +143,17 @@ def rmse(gap: np.ndarray) -> float:
     return float(np.sqrt(np.mean((gap - DESIRED_GAP) ** 2)))
 
 
+def floats(p: argparse.ArgumentParser, name: str, text: str) -> list[float]:
+    """Comma-separated numbers >= 0, or the parser's one-line error naming the option."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        p.error(f"{name}: comma-separated numbers, e.g. 0,0.2; got {text!r}")
+    if not all(math.isfinite(x) and x >= 0.0 for x in values):
+        p.error(f"{name}: each must be finite and >= 0; got {text!r}")
+    return values
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", choices=sorted(UNIT), default="ev", help="the host vehicle (default ev)")
@@ -152,11 +164,15 @@ def main() -> None:
     p.add_argument("--gammas", default=None, help="speed-difference gains [1/s], comma-separated (default: the scenario's grid)")
     p.add_argument("--lag", type=float, default=0.0, help="[s] the laws see the closing speed through a first-order lag of this (default 0)")
     p.add_argument("--copy", action="store_true", help="also the lead copies (LeadCopy) over their grid of lags and gains")
+    p.add_argument("--copy-speed-gains", default=",".join(map(str, COPY_SPEED_GAINS)), help="[1/s] (--copy) k_v, comma-separated (default %(default)s)")
+    p.add_argument("--copy-gap-gains", default=",".join(map(str, COPY_GAP_GAINS)), help="[1/s^2] (--copy) k_g, comma-separated (default %(default)s)")
+    p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy) how late the lead copies see the lead, comma-separated (default %(default)s)")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
     if not a.lag >= 0.0:
         p.error(f"--lag: a lag is a time, >= 0 s; got {a.lag:g}")
+    copy_lags, k_vs, k_gs = (floats(p, name, text) for name, text in (("--copy-lags", a.copy_lags), ("--copy-speed-gains", a.copy_speed_gains), ("--copy-gap-gains", a.copy_gap_gains)))
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
     sc, unit = a.scenario, UNIT[a.scenario]
     out = Path(a.out or f"runs/energy-frontier-{'tests' if a.tests else 'random'}{'-ice' if sc == 'ice' else ''}")
@@ -182,7 +198,7 @@ def main() -> None:
         done = [replay(r, teacher_law(sc, beta, gamma), ramp=True, lag=a.lag) for r in runs]
         rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}" + (f" lag {a.lag:g} s" if a.lag else ""), "beta": beta, "gamma": gamma, "lag": a.lag,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
-    for lag, k_v, k_g in itertools.product(COPY_LAGS, COPY_SPEED_GAINS, COPY_GAP_GAINS) if a.copy else ():
+    for lag, k_v, k_g in itertools.product(copy_lags, k_vs, k_gs) if a.copy else ():
         done = [replay(r, LeadCopy(lag, k_v, k_g), ramp=True) for r in runs]
         rows.append({"follower": f"copy lag {lag:g} s k_v {k_v:g} k_g {k_g:g}", "copy_lag": lag, "k_v": k_v, "k_g": k_g,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
