@@ -166,7 +166,7 @@ def main() -> None:
     p.add_argument("--copy", action="store_true", help="also the lead copies (LeadCopy) over their grid of lags and gains")
     p.add_argument("--copy-speed-gains", default=",".join(map(str, COPY_SPEED_GAINS)), help="[1/s] (--copy) k_v, comma-separated (default %(default)s)")
     p.add_argument("--copy-gap-gains", default=",".join(map(str, COPY_GAP_GAINS)), help="[1/s^2] (--copy) k_g, comma-separated (default %(default)s)")
-    p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy) how late the lead copies see the lead, comma-separated (default %(default)s)")
+    p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy) how late the lead copies see the lead, to the nearest control step, comma-separated (default %(default)s)")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
