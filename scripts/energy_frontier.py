@@ -21,6 +21,10 @@ script checks):
   TAU seconds late that copies them, with a weak pull toward 55 m
   (:class:`LeadCopy`); at TAU = 0 it is the best a causal follower can know, an upper
   bound on what perception could give a student;
+* with ``--mpc`` (EV only), predictive followers: told the lead's speed and acceleration
+  as the copies are, they re-plan every step with preview_bound over the next 10 s of a
+  predicted lead, whose acceleration fades over 5 s, and take the plan's first step
+  (:class:`PredictiveFollower`), at the copies' lags;
 * preview (EV only; its model is eq. 6): energy.frontier.preview_bound over a grid of gap
   weights, from the ACC's initial speed and gap to its final speed: what a follower that
   knew the lead's whole future could reach.
@@ -52,6 +56,7 @@ from agent_client.rewards import ECO_TIME_GAP
 from agent_client.rl.learner import TEACHER_55_GENTLE, TEACHER_MARGIN_GAPS
 from energy.cmem import COROLLA_2022
 from energy.cmem import per_mile as cmem_per_mile
+from energy.errors import TraceError
 from energy.ev import eq6_per_mile
 from energy.frontier import preview_bound
 from protocol.constants import A_MAX, A_MIN, DESIRED_GAP
@@ -67,6 +72,9 @@ LAMS = (0.001, 0.003, 0.01, 0.03, 0.1)
 COPY_LAGS = (0.0, 0.5, 1.0)  # [s] how late the lead copies see the lead
 COPY_SPEED_GAINS = (0.5, 1.0, 2.0)  # [1/s]
 COPY_GAP_GAINS = (0.02, 0.05, 0.1)  # [1/s^2]
+MPC_HORIZON = 10.0  # [s] how far ahead the predictive followers plan
+MPC_FADE = 5.0  # [s] the time constant over which they expect the lead's acceleration to fade
+MPC_LAMS = (0.01, 0.015, 0.02, 0.03)  # their gap weights [kJ/(m^2 s)]
 DECEL_CAP = TEACHER_55_GENTLE[2]  # [m/s^2] the gentle teachers' braking cap
 
 
@@ -101,6 +109,43 @@ class LeadCopy:
         return min(1.0, a / A_MAX) if a >= 0.0 else max(-1.0, a / -A_MIN)
 
 
+class PredictiveFollower:
+    """Receding-horizon preview on a predicted lead: every step, the host speed trace of
+    least eq. 6 energy plus ``lam`` x squared gap error over the next ``horizon`` s
+    (energy.frontier.preview_bound), behind the lead as predicted from its speed and
+    acceleration ``lag`` s before, the acceleration fading over ``fade`` s; it takes the
+    plan's first step. The gap is read as it is now.
+
+    Like :class:`LeadCopy` it is handed the lead's acceleration, so it is a bound, not a
+    teacher. Standing behind a stopped lead, where energy per mile is undefined, it
+    follows as the copy does."""
+
+    def __init__(self, lag: float, lam: float, horizon: float = MPC_HORIZON, fade: float = MPC_FADE):
+        self.lam, self.fade = lam, fade
+        self.late: deque[tuple[float, float]] = deque(maxlen=round(lag / DT) + 1)
+        self.t = np.arange(round(horizon / DT) + 1) * DT
+        self.fallback = LeadCopy(0.0, 1.0, 0.1)
+
+    def _ahead(self, a: float, v: float, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The lead's displacement [m] and speed [m/s] ``tau`` s after the state (a, v)."""
+        faded = 1.0 - np.exp(-tau / self.fade)
+        return v * tau + a * self.fade * (tau - self.fade * faded), v + a * self.fade * faded
+
+    def __call__(self, obs: dict[str, float]) -> float:
+        self.late.append((obs["a_lead"], obs["v_lead"]))
+        a_lead, v_lead = self.late[0]
+        seen = (len(self.late) - 1) * DT  # how long ago that state was
+        x_then, _ = self._ahead(a_lead, v_lead, np.array([seen]))
+        x, v = self._ahead(a_lead, v_lead, self.t + seen)
+        x_lead = np.maximum.accumulate(obs["gap"] + x - x_then[0])  # the host at 0; a lead does not back up
+        try:
+            plan = preview_bound(self.t, x_lead, obs["v_host"], obs["gap"], max(float(v[-1]), 0.0), self.lam)
+        except TraceError:  # a plan that stands still: no energy per mile to weigh
+            return self.fallback(obs)
+        a = (plan.v[1] - obs["v_host"]) / DT
+        return min(1.0, a / A_MAX) if a >= 0.0 else max(-1.0, a / -A_MIN)
+
+
 def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint: str | None = None, scenario: str = "ev") -> dict[str, np.ndarray]:
     """Drive the ACC (or a DDQN checkpoint) over UDP; the log's columns, with the lead's position."""
     log = out / "logs" / f"{name}-{trajectory}-{seed}.csv"
@@ -118,7 +163,7 @@ def record(trajectory: str, seed: int, out: Path, name: str = "acc", checkpoint:
     return run
 
 
-def replay(run: dict[str, np.ndarray], law: AccController | LeadCopy, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def replay(run: dict[str, np.ndarray], law: AccController | LeadCopy | PredictiveFollower, ramp: bool, lag: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Host speed and gap behind the recorded lead under ``law`` (through the ramp-fine
     actuator if ``ramp``), the law's following term seeing the closing speed through a
     first-order lag of ``lag`` seconds (0: as it is)."""
@@ -126,7 +171,7 @@ def replay(run: dict[str, np.ndarray], law: AccController | LeadCopy, ramp: bool
     v, x = float(run["v_host"][0]), float(x_lead[0] - run["gap"][0])
     actuator = FineRamp()
     vs, gaps = [v], [x_lead[0] - x]
-    driver: AccController | LeadCopy | LateClosing = LateClosing(law, lag, DT) if lag > 0.0 and isinstance(law, AccController) else law
+    driver: AccController | LeadCopy | PredictiveFollower | LateClosing = LateClosing(law, lag, DT) if lag > 0.0 and isinstance(law, AccController) else law
     for k in range(len(t) - 1):
         u = driver({"gap": x_lead[k] - x, "v_host": v, "v_lead": run["v_lead"][k], "a_lead": run["a_lead"][k], "set_speed": DEFAULT_SET_SPEED})
         if ramp:
@@ -164,14 +209,17 @@ def main() -> None:
     p.add_argument("--gammas", default=None, help="speed-difference gains [1/s], comma-separated (default: the scenario's grid)")
     p.add_argument("--lag", type=float, default=0.0, help="[s] the laws see the closing speed through a first-order lag of this (default 0)")
     p.add_argument("--copy", action="store_true", help="also the lead copies (LeadCopy) over their grid of lags and gains")
+    p.add_argument("--mpc", action="store_true", help="(EV) also the predictive followers (PredictiveFollower) at the --copy-lags, over their gap weights")
     p.add_argument("--copy-speed-gains", default=",".join(map(str, COPY_SPEED_GAINS)), help="[1/s] (--copy) k_v, comma-separated (default %(default)s)")
     p.add_argument("--copy-gap-gains", default=",".join(map(str, COPY_GAP_GAINS)), help="[1/s^2] (--copy) k_g, comma-separated (default %(default)s)")
-    p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy) how late the lead copies see the lead, to the nearest control step, comma-separated (default %(default)s)")
+    p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy, --mpc) how late the lead copies see the lead, to the nearest control step, comma-separated (default %(default)s)")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
     if not a.lag >= 0.0:
         p.error(f"--lag: a lag is a time, >= 0 s; got {a.lag:g}")
+    if a.mpc and a.scenario != "ev":
+        p.error("--mpc: the predictive followers plan on eq. 6, the EV's energy; use --scenario ev")
     copy_lags, k_vs, k_gs = (floats(p, name, text) for name, text in (("--copy-lags", a.copy_lags), ("--copy-speed-gains", a.copy_speed_gains), ("--copy-gap-gains", a.copy_gap_gains)))
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
     sc, unit = a.scenario, UNIT[a.scenario]
@@ -201,6 +249,10 @@ def main() -> None:
     for lag, k_v, k_g in itertools.product(copy_lags, k_vs, k_gs) if a.copy else ():
         done = [replay(r, LeadCopy(lag, k_v, k_g), ramp=True) for r in runs]
         rows.append({"follower": f"copy lag {lag:g} s k_v {k_v:g} k_g {k_g:g}", "copy_lag": lag, "k_v": k_v, "k_g": k_g,
+                     "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
+    for lag, lam in itertools.product(copy_lags, MPC_LAMS) if a.mpc else ():
+        done = [replay(r, PredictiveFollower(lag, lam), ramp=True) for r in runs]
+        rows.append({"follower": f"predictive lag {lag:g} s lam {lam:g}", "mpc_lag": lag, "mpc_lam": lam,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
     for lam in map(float, a.lams.split(",") if sc == "ev" else ()):
         pts = [preview_bound(r["t"], r["x_lead"], r["v_host"][0], r["gap"][0], r["v_host"][-1], lam) for r in runs]
@@ -234,6 +286,9 @@ def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target
     for lag in sorted({r["copy_lag"] for r in rows if "copy_lag" in r}):
         pts = sorted((np.mean(r["rmse"]), r["ratio"]) for r in rows if r.get("copy_lag") == lag)
         ax.plot(*zip(*pts, strict=True), ":^", ms=4, label=f"lead copy, told the lead's acceleration {lag:g} s late")
+    for lag in sorted({r["mpc_lag"] for r in rows if "mpc_lag" in r}):
+        pts = sorted((np.mean(r["rmse"]), r["ratio"]) for r in rows if r.get("mpc_lag") == lag)
+        ax.plot(*zip(*pts, strict=True), "-.v", ms=4, label=f"predictive, told the lead's acceleration {lag:g} s late")
     for r in rows:
         if "model" in r:
             ax.plot(np.mean(r["rmse"]), r["ratio"], "*", ms=12, label=f"{r['follower']} (driven from the camera)")

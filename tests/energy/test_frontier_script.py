@@ -28,3 +28,34 @@ def test_a_bad_grid_is_refused_in_one_line(tmp_path, option, value, why):
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith(f"energy_frontier.py: error: {option}: ") and why in last
     assert not out.exists()  # refused before anything was driven
+
+
+def test_the_predictive_followers_are_refused_for_the_ice_car_in_one_line(tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, str(SCRIPT), "--scenario", "ice", "--tests", "--mpc", "--out", str(out)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == "energy_frontier.py: error: --mpc: the predictive followers plan on eq. 6, the EV's energy; use --scenario ev"
+    assert not out.exists()
+
+
+def _script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("energy_frontier", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_predictive_follower_holds_a_steady_lead_and_brakes_for_a_braking_one():
+    ef = _script()
+    steady = {"gap": 55.0, "v_host": 20.0, "v_lead": 20.0, "a_lead": 0.0}
+    hold = ef.PredictiveFollower(0.0, 0.01)(steady)
+    assert abs(hold) < 0.05  # at most a light coast: the plan trades a little gap for energy
+    braking = {**steady, "a_lead": -3.0}
+    assert ef.PredictiveFollower(0.0, 0.01)(braking) < hold - 0.3
+    # told 0.5 s late, it has not yet seen the brake that began since
+    late = ef.PredictiveFollower(0.5, 0.01)
+    for _ in range(3):
+        late(steady)
+    assert late(braking) == pytest.approx(hold, abs=1e-9)
