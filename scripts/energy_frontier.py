@@ -75,6 +75,7 @@ COPY_GAP_GAINS = (0.02, 0.05, 0.1)  # [1/s^2]
 MPC_HORIZON = 10.0  # [s] how far ahead the predictive followers plan
 MPC_FADE = 5.0  # [s] the time constant over which they expect the lead's acceleration to fade
 MPC_LAMS = (0.01, 0.015, 0.02, 0.03)  # their gap weights [kJ/(m^2 s)]
+FALLBACK_SPEED_GAIN, FALLBACK_GAP_GAIN = 1.0, 0.1  # [1/s], [1/s^2] the lead copy they fall back on at a standstill
 DECEL_CAP = TEACHER_55_GENTLE[2]  # [m/s^2] the gentle teachers' braking cap
 
 
@@ -118,13 +119,12 @@ class PredictiveFollower:
 
     Like :class:`LeadCopy` it is handed the lead's acceleration, so it is a bound, not a
     teacher. Standing behind a stopped lead, where energy per mile is undefined, it
-    follows as the copy does."""
+    follows as a copy of the same (late) lead state does."""
 
     def __init__(self, lag: float, lam: float, horizon: float = MPC_HORIZON, fade: float = MPC_FADE):
         self.lam, self.fade = lam, fade
         self.late: deque[tuple[float, float]] = deque(maxlen=round(lag / DT) + 1)
         self.t = np.arange(round(horizon / DT) + 1) * DT
-        self.fallback = LeadCopy(0.0, 1.0, 0.1)
 
     def _ahead(self, a: float, v: float, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The lead's displacement [m] and speed [m/s] ``tau`` s after the state (a, v)."""
@@ -140,9 +140,9 @@ class PredictiveFollower:
         x_lead = np.maximum.accumulate(obs["gap"] + x - x_then[0])  # the host at 0; a lead does not back up
         try:
             plan = preview_bound(self.t, x_lead, obs["v_host"], obs["gap"], max(float(v[-1]), 0.0), self.lam)
-        except TraceError:  # a plan that stands still: no energy per mile to weigh
-            return self.fallback(obs)
-        a = (plan.v[1] - obs["v_host"]) / DT
+            a = (plan.v[1] - obs["v_host"]) / DT
+        except TraceError:  # a plan that stands still: no energy per mile to weigh; copy, as late
+            a = a_lead + FALLBACK_SPEED_GAIN * (v_lead - obs["v_host"]) + FALLBACK_GAP_GAIN * (obs["gap"] - DESIRED_GAP)
         return min(1.0, a / A_MAX) if a >= 0.0 else max(-1.0, a / -A_MIN)
 
 
