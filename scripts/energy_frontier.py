@@ -220,6 +220,11 @@ def main() -> None:
         p.error(f"--lag: a lag is a time, >= 0 s; got {a.lag:g}")
     if a.mpc and a.scenario != "ev":
         p.error("--mpc: the predictive followers plan on eq. 6, the EV's energy; use --scenario ev")
+    betas = floats(p, "--betas", a.betas) if a.betas else BETAS[a.scenario]
+    gammas = floats(p, "--gammas", a.gammas) if a.gammas else GAMMAS[a.scenario]
+    lams = floats(p, "--lams", a.lams)
+    if not all(lam > 0.0 for lam in lams):
+        p.error(f"--lams: each preview gap weight must be > 0; got {a.lams!r}")
     copy_lags, k_vs, k_gs = (floats(p, name, text) for name, text in (("--copy-lags", a.copy_lags), ("--copy-speed-gains", a.copy_speed_gains), ("--copy-gap-gains", a.copy_gap_gains)))
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
     sc, unit = a.scenario, UNIT[a.scenario]
@@ -240,9 +245,7 @@ def main() -> None:
         driven = [record(t, s, out, name, path, sc) for t, s in episodes]
         rows.append({"follower": name, "model": path, "rmse": [rmse(r["gap"]) for r in driven],
                      "energy": [energy_per_mile(sc, r["t"], r["v_host"]) for r in driven]})  # fmt: skip
-    betas = a.betas.split(",") if a.betas else BETAS[sc]
-    gammas = a.gammas.split(",") if a.gammas else GAMMAS[sc]
-    for beta, gamma in itertools.product(map(float, betas), map(float, gammas)):
+    for beta, gamma in itertools.product(betas, gammas):
         done = [replay(r, teacher_law(sc, beta, gamma), ramp=True, lag=a.lag) for r in runs]
         rows.append({"follower": f"law beta {beta:g} gamma {gamma:g}" + (f" lag {a.lag:g} s" if a.lag else ""), "beta": beta, "gamma": gamma, "lag": a.lag,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
@@ -254,7 +257,7 @@ def main() -> None:
         done = [replay(r, PredictiveFollower(lag, lam), ramp=True) for r in runs]
         rows.append({"follower": f"predictive lag {lag:g} s lam {lam:g}", "mpc_lag": lag, "mpc_lam": lam,
                      "rmse": [rmse(g) for _, g in done], "energy": [energy_per_mile(sc, r["t"], v) for r, (v, _) in zip(runs, done, strict=True)]})  # fmt: skip
-    for lam in map(float, a.lams.split(",") if sc == "ev" else ()):
+    for lam in lams if sc == "ev" else ():
         pts = [preview_bound(r["t"], r["x_lead"], r["v_host"][0], r["gap"][0], r["v_host"][-1], lam) for r in runs]
         rows.append({"follower": f"preview lam {lam:g}", "lam": lam, "rmse": [q.gap_rmse_m for q in pts], "energy": [q.energy_kj_per_mi for q in pts],
                      "accel_range": [min(q.accel_range[0] for q in pts), max(q.accel_range[1] for q in pts)]})  # fmt: skip

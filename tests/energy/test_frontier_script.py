@@ -1,4 +1,5 @@
-"""scripts/energy_frontier.py refuses bad grids in one line, before driving or writing anything."""
+"""scripts/energy_frontier.py: bad grids are refused in one line, before driving or writing
+anything; the predictive follower plans as a follower should."""
 
 from __future__ import annotations
 
@@ -19,6 +20,9 @@ SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "energy_frontier.py"
         ("--copy-speed-gains", "nan", "each must be finite and >= 0"),
         ("--copy-gap-gains", "0.1,,0.2", "comma-separated numbers"),
         ("--lag", "-1", "a lag is a time, >= 0 s"),
+        ("--betas", "0.3,high", "comma-separated numbers"),
+        ("--gammas", "-2", "each must be finite and >= 0"),
+        ("--lams", "0.01,0", "each preview gap weight must be > 0"),
     ],
 )
 def test_a_bad_grid_is_refused_in_one_line(tmp_path, option, value, why):
