@@ -4,7 +4,12 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test lint demo bench clean
+.PHONY: install test test-fast test-integration lint demo bench clean
+
+# Both cores: pytest-xdist runs tests in 2 workers (spawned servers bind port 0, so
+# parallel tests never share a port). The 25 slowest tests are printed at the end.
+JOBS   ?= 2
+PYTEST := $(BIN)/python -m pytest -q -n $(JOBS) --durations=25
 
 install: $(STAMP)
 
@@ -15,7 +20,14 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 test: install
-	$(BIN)/python -m pytest -q
+	$(PYTEST)
+
+# The unit tier: in-process tests only (tests/conftest.py sorts them), without the slow ones.
+test-fast: install
+	$(PYTEST) -m "unit and not slow"
+
+test-integration: install
+	$(PYTEST) -m integration
 
 lint: install
 	$(BIN)/ruff check .

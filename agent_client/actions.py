@@ -37,7 +37,7 @@ from typing import Protocol
 import numpy as np
 
 from protocol.constants import A_MAX, A_MIN, FORCE_LEVELS, FORCES, N_ACTIONS
-from sim_server.vehicle import accel_of_force
+from protocol.force import accel_of_force
 
 __all__ = ["ACTION_TYPES", "RAMP_ACTIONS", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
 

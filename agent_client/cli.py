@@ -43,13 +43,13 @@ from protocol.auth import load_key
 from protocol.constants import CAMERA_SIZE, SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
+from protocol.options import SunElevation
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     SCENARIOS,
     TRAJECTORIES,
     check_initial,
 )
-from sim_server.options import SunElevation
 
 LIVE_IMAGE = CAMERA_SIZE  # [px] the live window asks for the full camera (shown scaled up)
 

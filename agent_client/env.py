@@ -26,8 +26,13 @@ from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
 from protocol.constants import CAMERA_SIZE, FORCES, N_ACTIONS
-from protocol.scenarios import LEAD_SCENARIOS, check_initial, check_trajectory
-from sim_server.trajectory import RANDOM_DURATION, TEST_DURATION
+from protocol.scenarios import (
+    LEAD_SCENARIOS,
+    RANDOM_DURATION,
+    TEST_DURATION,
+    check_initial,
+    check_trajectory,
+)
 
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED", "ENV_ID", "MAX_EPISODE_STEPS"]
 

@@ -14,9 +14,9 @@ columns become 150. Here the 150 are the middle columns (25 cut from each side):
 
 The mask is fixed pixel geometry (no image content), derived once from the default
 camera of ``sim_server.render.CameraConfig`` (400x400, 45 deg horizontal field of
-view, 1.4 m mount height, level). The agent never imports the simulator, so the few
-numbers are repeated below; ``tests/agent_client/test_preprocess.py`` checks that
-they still match the camera. The kept region is the union of the silhouettes of a
+view, 1.4 m mount height, level). The agent never imports the simulator: both take
+these numbers from :mod:`protocol.constants`, and ``tests/agent_client/test_preprocess.py``
+checks that the derived ones still match the camera. The kept region is the union of the silhouettes of a
 2x2.3 m wide, 1.8 m tall box in the host lane at any distance beyond
 :data:`MASK_NEAR` (a rectangle around the vanishing point), plus the host lane's
 ground corridor (a trapezoid widening towards the bottom), 2.3 m either side of the
@@ -44,18 +44,18 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from protocol.constants import CAMERA_SIZE
+from protocol.constants import CAMERA_HFOV, CAMERA_MOUNT_HEIGHT, CAMERA_SIZE
 
 __all__ = ["FRAME_H", "FRAME_W", "MASK", "MASKS", "ZOOMS", "camera_size", "preprocess", "preprocess_reference"]
 
 FRAME_H = 105  # [px] network input height
 FRAME_W = 150  # [px] network input width
 
-# --- camera numbers, repeated from sim_server.render.CameraConfig defaults ------------
-FOCAL_200 = 100.0 / np.tan(np.pi / 8)  # [px] focal length at 200 px width (45 deg hfov)
+# --- the default camera's numbers (protocol.constants, which the renderer's CameraConfig uses too)
+FOCAL_200 = 100.0 / np.tan(CAMERA_HFOV / 2)  # [px] focal length at 200 px width (45 deg hfov)
 VANISH_ROW_200 = 99.5  # [px] horizon row at 200x200 (level camera)
 VANISH_COL_200 = 99.5  # [px] vanishing point column at 200x200
-MOUNT_HEIGHT = 1.4  # [m] camera height above the road
+MOUNT_HEIGHT = CAMERA_MOUNT_HEIGHT  # [m] camera height above the road
 
 # --- mask geometry --------------------------------------------------------------------
 MASK_HALF_WIDTH = 2.3  # [m] lane half width 1.85 + room for the car's lateral offset

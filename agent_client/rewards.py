@@ -42,8 +42,7 @@ from agent_client.controllers.acc import AccController
 from energy.cmem import COROLLA_2022, cmem_rates
 from energy.comfort import ISO_JERK_LIMIT_MPS3
 from energy.ev import eq6_power_kw
-from protocol.constants import DESIRED_GAP
-from sim_server.world import WorldConfig
+from protocol.constants import CONTROL_PERIOD, DESIRED_GAP
 
 __all__ = [
     "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
@@ -85,7 +84,6 @@ def force_term(u: float) -> float:
 FUEL_FULL = 19.1  # [g/s] Corolla CMEM fuel rate at 30 m/s and full throttle (3.5 m/s^2)
 POWER_FULL = 246.5  # [kW] Leaf eq. 6 battery power at 30 m/s and full throttle
 JERK_FULL = 4.0 * ISO_JERK_LIMIT_MPS3  # [m/s^3] the comfort term's full scale
-CONTROL_PERIOD = WorldConfig().control_period  # [s] a spawned server's decision period (0.1 s)
 CLOSING_FULL = 5.0  # [m/s] speed difference to the lead at which the closing term is full
 # Weights (gap, energy, comfort, closing); the ablations that chose them: docs/training.md.
 ECO_WEIGHTS = (1.0, 0.5, 0.25, 0.5)

@@ -30,6 +30,8 @@ __all__ = [
     "parse_sun_elevation",
     "SCENARIOS",
     "TEST_TRAJECTORIES",
+    "TEST_DURATION",
+    "RANDOM_DURATION",
     "RANDOM",
     "TRACE",
     "Param",
@@ -57,6 +59,8 @@ __all__ = [
 SCENARIOS = ("ice", "ev")  # host vehicle and paper setting (Table 2)
 TEST_TRAJECTORIES = ("test-1", "test-2", "test-3", "test-4")
 RANDOM = "random"
+TEST_DURATION = 240.0  # [s] the paper's 4-minute test trajectories
+RANDOM_DURATION = 240.0  # [s] training episodes are as long as the tests
 TRACE = "trace"  # wire name of a trace sent with the reset
 
 # Cruise set speed: the driver's input, enforced by the host's speed limiter.

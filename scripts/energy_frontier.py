@@ -60,8 +60,9 @@ from energy.errors import TraceError
 from energy.ev import eq6_per_mile
 from energy.frontier import preview_bound
 from protocol.constants import A_MAX, A_MIN, DESIRED_GAP
+from protocol.force import accel_of_force
 from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
-from sim_server.vehicle import accel_of_force, advance_speed
+from sim_server.vehicle import advance_speed
 from vacc.safety import parse_seeds
 
 BETAS = {"ev": (0.1, 0.2, 0.3, 0.4, 0.5), "ice": (0.1, 0.125, 0.15, 0.2)}

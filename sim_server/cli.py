@@ -14,8 +14,8 @@ from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
+from protocol.options import SunElevation
 from protocol.transport import is_loopback
-from sim_server.options import SunElevation
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
 

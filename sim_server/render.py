@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from protocol.constants import CAMERA_SIZE
+from protocol.constants import CAMERA_HFOV, CAMERA_MOUNT_HEIGHT, CAMERA_SIZE
 from protocol.messages import MIN_IMAGE_SIDE
 from sim_server import scenery as sc
 from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, SceneState
@@ -85,9 +85,9 @@ class CameraConfig:
 
     width: int = CAMERA_SIZE[0]  # [px]
     height: int = CAMERA_SIZE[1]  # [px]
-    mount_height: float = 1.4  # [m]
+    mount_height: float = CAMERA_MOUNT_HEIGHT  # [m]
     pitch: float = 0.0  # [rad]
-    hfov: float = math.pi / 4  # [rad]
+    hfov: float = CAMERA_HFOV  # [rad]
     setback: float = 1.5  # [m]
     near: float = 0.5  # [m]
     far: float = 450.0  # [m]

@@ -22,6 +22,8 @@ import numpy as np
 
 from protocol.scenarios import (
     LEAD_SCENARIOS,
+    RANDOM_DURATION,
+    TEST_DURATION,
     TEST_TRAJECTORIES,
     TRACE_ACCEL_LIMIT,
     TRACE_SPEED_MAX,
@@ -36,6 +38,7 @@ __all__ = [
     "ICE_TEST_PARAMS",
     "EV_TEST_WINDOWS",
     "TEST_DURATION",
+    "RANDOM_DURATION",
     "eq7_speed",
     "limit",
     "ice_trajectory",
@@ -45,8 +48,6 @@ __all__ = [
     "build",
 ]
 
-TEST_DURATION = 240.0  # [s] the paper's 4-minute test trajectories
-RANDOM_DURATION = 240.0  # [s] training episodes are as long as the tests
 
 
 @dataclass(frozen=True)

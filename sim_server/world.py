@@ -24,7 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import (
+    PHYSICS_DT,
+    SUBSTEPS,
+    SUN_ELEVATION,
+    TRAFFIC_PER_LANE,
+    TRAFFIC_PER_LANE_RANGE,
+)
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     GAP_LIMIT,
@@ -56,8 +62,8 @@ TRAFFIC_COLORS = ((40, 70, 150), (200, 200, 205), (30, 30, 35), (120, 125, 130),
 class WorldConfig:
     """Timing and traffic settings of a world."""
 
-    physics_dt: float = 0.02  # [s] paper Sec. 4
-    substeps: int = 5  # physics steps per control step: 0.1 s control period (10 Hz)
+    physics_dt: float = PHYSICS_DT  # [s] paper Sec. 4
+    substeps: int = SUBSTEPS  # physics steps per control step: 0.1 s control period (10 Hz)
     traffic_per_lane: int = TRAFFIC_PER_LANE  # cars in each adjacent lane; twice as many oncoming
     randomize_light: bool = True  # draw the sun per episode for random trajectories and lead scenarios
     sun_elevation: tuple[float, float] = SUN_ELEVATION  # [rad] the range of that draw's height

@@ -31,13 +31,13 @@ from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.comfort import ISO_DECEL_LIMIT_MPS2, ISO_JERK_LIMIT_MPS3
 from energy.metrics import Metrics
 from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.options import SunElevation
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     LEAD_SCENARIOS,
     SCENARIOS,
     TEST_TRAJECTORIES,
 )
-from sim_server.options import SunElevation
 from vacc import stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir

@@ -30,6 +30,7 @@ def test_behind_a_steady_lead_it_holds_the_leads_speed_or_saves_by_dropping_back
     assert loose.energy_kj_per_mi < holding and loose.v.min() < 25.0 and loose.gap_rmse_m > tight.gap_rmse_m
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_a_heavier_gap_weight_trades_energy_for_a_smaller_gap_error():
     rng = np.random.default_rng(0)
     a = np.repeat(rng.normal(0.0, 0.8, 60), 20)[:1200]  # a lead that speeds up and slows down every 2 s
@@ -45,6 +46,7 @@ def test_a_heavier_gap_weight_trades_energy_for_a_smaller_gap_error():
         assert p.v[0] == v[0] and p.v[-1] == v[-1]
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_behind_a_lead_that_stops_the_trace_stops_and_never_reverses():
     v = np.concatenate([np.linspace(20.0, 0.0, 101), np.zeros(300), np.linspace(0.0, 10.0, 101)])
     t, x = _lead(v)

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from proctools import job
 
 from agent_client.errors import FatalSessionError, SessionError
 from agent_client.launcher import READY_PREFIX, local_server
@@ -57,35 +58,27 @@ def test_packet_loss_duplication_and_reordering_give_identical_log(clean_log, tm
 
 
 def test_killed_server_makes_client_exit_nonzero_naming_address(tmp_path):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim_server", "--port", "0", "--realtime"], stdout=subprocess.PIPE, text=True
-    )
-    try:
+    log = tmp_path / "k.csv"
+    server = [sys.executable, "-m", "sim_server", "--port", "0", "--realtime"]
+    with job(server, stdout=subprocess.PIPE) as proc:
         line = proc.stdout.readline()
         assert line.startswith(READY_PREFIX)
         address = line[len(READY_PREFIX) :].strip()
-        client = subprocess.Popen(
-            [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--server", address, "--give-up", "2", "--log", str(tmp_path / "k.csv")],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
-        log = tmp_path / "k.csv"
-        deadline = time.monotonic() + 60
-        # Realtime: wait until the run is under way, far from its 240 s end.
-        while time.monotonic() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 10):
-            time.sleep(0.1)
-        assert client.poll() is None
-        proc.kill()
-        killed = time.monotonic()
-        _, err = client.communicate(timeout=30)
-        elapsed = time.monotonic() - killed
-    finally:
-        proc.kill()
-        proc.wait()
-        proc.stdout.close()
+        drive = [sys.executable, "-m", "vacc", "drive", "--controller", "acc", "--server", address, "--give-up", "2", "--log", str(log)]
+        with job(drive, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as client:
+            deadline = time.monotonic() + 60
+            # Realtime: wait until the run is under way, far from its 240 s end.
+            while time.monotonic() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 10):
+                time.sleep(0.1)
+            assert client.poll() is None
+            proc.kill()
+            killed = time.monotonic()
+            _, err = client.communicate(timeout=30)
+            elapsed = time.monotonic() - killed
     assert client.returncode != 0
     assert address in err and "last frame" in err
     assert elapsed < 2.0 + 3.0  # give-up time plus process exit
-    rows = (tmp_path / "k.csv").read_text().splitlines()
+    rows = log.read_text().splitlines()
     assert len(rows) > 5  # the log so far is kept
 
 
@@ -172,14 +165,10 @@ def test_serve_refuses_non_loopback_without_flag(run_vacc):
 
 
 def test_serve_sigterm_prints_stats():
-    proc = subprocess.Popen([sys.executable, "-m", "sim_server", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with job([sys.executable, "-m", "sim_server", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
         assert proc.stdout.readline().startswith(READY_PREFIX)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert proc.returncode == 0 and "stats" in err
 
 
@@ -256,16 +245,10 @@ def test_spawned_server_outlives_a_ctrl_c_to_its_clients_process_group():
         "        time.sleep(1)  # time for a server that got it to die\n"
         "        print('frame', s.step(0.0)['frame'], flush=True)\n"
     )
-    client = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              start_new_session=True)  # fmt: skip
-    try:
+    with job([sys.executable, "-c", script], own_group=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as client:
         assert client.stdout.readline() == "ready\n"
         os.killpg(client.pid, signal.SIGINT)
         out, err = client.communicate(timeout=60)
-    finally:
-        if client.poll() is None:
-            os.killpg(client.pid, signal.SIGKILL)
-            client.wait()
     assert client.returncode == 0 and out == "frame 1\n", err
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import msgpack
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -36,6 +37,7 @@ def test_random_bytes_only_raise_protocol_errors(data):
     messages.validate(msg)
 
 
+@pytest.mark.slow  # over ~5 s alone
 @SETTINGS
 @given(msgpack_values)
 def test_valid_msgpack_of_any_shape_is_validated(value):

@@ -284,6 +284,7 @@ def session_script(draw) -> tuple[dict, list[dict]]:
     return hello, draw(st.lists(request(), min_size=4, max_size=16))
 
 
+@pytest.mark.slow  # over ~5 s alone
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(session_script(), st.data())
 def test_internal_is_unreachable_from_well_formed_requests(h, script, data):

@@ -68,6 +68,7 @@ def test_gpu_bench_rows_on_the_cpu():
     assert 0 < f["median_s"] <= f["p90_s"]
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_scaling_bench_has_a_window_only_after_every_actor_delivered_often():
     """Two actors of the multi-server trainer (real servers): a run of a few deliveries per
     actor reports no window rate (it once counted steps taken before the window opened, and

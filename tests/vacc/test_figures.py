@@ -45,6 +45,7 @@ def _written(out, w):
         assert (out / f"{w.name}.{ext}").stat().st_size > 1000, (w.name, ext)
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_every_figure_over_seeds(tmp_path):
     runs = _runs(tmp_path)
     written = [
@@ -92,6 +93,7 @@ def test_smoothing_is_debiased():
         figures.smooth([1.0], 1.0)
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_training_curves_late_start_and_bad_files(tmp_path):
     assert not figures.late_start([5000, 10000, 15000])
     assert figures.late_start([145507, 150507, 155507])

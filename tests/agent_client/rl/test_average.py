@@ -26,6 +26,7 @@ def _policies(tmp_path, n: int, cfg: Config | None = None) -> list:
     return paths
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_average_is_the_elementwise_mean_of_the_weights_and_keeps_the_sources(tmp_path):
     srcs = _policies(tmp_path, 3)
     before = [p.read_bytes() for p in srcs]

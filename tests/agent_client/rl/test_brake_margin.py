@@ -71,6 +71,7 @@ def _trained_q(tmp_path, weight: float) -> torch.Tensor:
     return q
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_margin_loss_teaches_the_full_brake_where_the_gaps_close_fast(tmp_path):
     q = _trained_q(tmp_path, 1.0)
     lead = q[:, EMERGENCY_LEVEL] - torch.cat([q[:, :EMERGENCY_LEVEL], q[:, EMERGENCY_LEVEL + 1 :]], dim=1).max(dim=1).values

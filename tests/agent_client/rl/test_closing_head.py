@@ -44,6 +44,7 @@ def test_the_target_is_the_clipped_closing_speed_over_five():
     np.testing.assert_allclose(closing_head_target(gaps, next_gaps, 0.1).numpy(), expected, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_closing_loss_teaches_the_head_the_closing_speed_from_the_gaps_one_step_apart(tmp_path):
     """Frames whose brightness encodes the gap's fall over the next step: the head can read it
     only if the target pairs each observation's gap with the next one's; the loss is logged."""

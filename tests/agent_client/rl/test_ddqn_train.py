@@ -15,7 +15,7 @@ import time
 import pytest
 import torch
 from click.testing import CliRunner
-from proctree import descendants, servers_of, state, wait_gone
+from proctools import descendants, job, servers_of, state, wait_gone
 
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
@@ -244,8 +244,7 @@ def test_first_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
             "--buffer-size", "2000", "--episode-seconds", "3", "--eval-trajectories", "test-1", "--eval-seconds", "0.5",
             "--eval-every", "0", "--checkpoint-every", "100000", "--quiet", "--out", str(out)]  # fmt: skip
     # its own session: a process group of its own, as a job started from a terminal
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
+    with job(args, own_group=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
         deadline = time.monotonic() + 120
         while not (out / "scalars.csv").exists() or not servers_of([proc.pid]):  # the learner and its server are up
             assert proc.poll() is None and time.monotonic() < deadline, "training did not start"
@@ -259,10 +258,6 @@ def test_first_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
         # the trainer reaps its server after the checkpoint; one that died of the Ctrl-C went first
         saved_before_the_server_went = (out / "latest.pt").exists()
         stdout, stderr = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     assert saved_before_the_server_went, "the Ctrl-C reached the spawned server"
     assert proc.returncode == 130, stderr
     assert "Ctrl-C again to abort" in stderr and "Traceback" not in stderr, stderr

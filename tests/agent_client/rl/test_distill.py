@@ -72,6 +72,7 @@ def test_a_teacher_that_observes_otherwise_is_refused_in_one_line():
         PolicyTeacher(cfg)
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_label_is_the_teachers_action_or_the_level_nearest_its_target():
     teacher = PolicyTeacher(_student())
     held, stacker = make_action_type("ramp-fine"), FrameStacker(8, 2)
@@ -135,6 +136,7 @@ def test_narrowing_to_the_same_widths_is_the_same_network(tmp_path):
         assert torch.equal(q(*_inputs()), same(*_inputs()))
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_narrowing_drops_the_weakest_units_and_the_columns_that_read_them(tmp_path):
     # Units whose weights in and out are zero contribute nothing: cut exactly those, and the
     # narrow network computes what the wide one did (to rounding: fewer terms in each sum).

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-from proctree import (
+from proctools import (
     assert_no_servers_left,
     descendants,
     procs,
     servers_of,
+    vacc_job,
     wait_gone,
     wait_until_both_actors_deliver,
 )
@@ -247,28 +248,21 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     """SIGTERM, Ctrl-C (SIGINT) or kill -9 of `vacc train --servers 2`: actors and servers all go."""
     out = tmp_path / "run"
     args = [*CLI_ARGS, "--servers", "2", "--steps", "100000", "--log-every", "20", "--out", str(out)]
-    with open(tmp_path / "stderr.txt", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
-    try:
+    with vacc_job(args, stderr_path=tmp_path / "stderr.txt") as proc:
         wait_until_both_actors_deliver(out)
         tree = descendants(proc.pid)
         assert len(servers_of(tree)) == 2, tree
         os.kill(proc.pid, sig)
         proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
     if sig != signal.SIGKILL:
         assert "Traceback" not in stderr, stderr[-2000:]
 
 
-def _start_in_own_group(args, stderr_path):
+def _in_own_group(args, stderr_path):
     """`vacc ARGS` in a session of its own: a process group, as a job started from a terminal."""
-    with open(stderr_path, "w") as err:
-        return subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.PIPE, stderr=err, text=True, start_new_session=True)
+    return vacc_job(args, own_group=True, stdout=subprocess.PIPE, stderr_path=stderr_path)
 
 
 def test_first_ctrl_c_of_a_two_server_run_saves_a_checkpoint_that_resumes(tmp_path):
@@ -276,17 +270,12 @@ def test_first_ctrl_c_of_a_two_server_run_saves_a_checkpoint_that_resumes(tmp_pa
     prints the command that resumes, and stops its actors and their servers in order."""
     out = tmp_path / "run"
     args = [*CLI_ARGS, "--servers", "2", "--steps", "100000", "--checkpoint-every", "100000", "--log-every", "20", "--out", str(out)]
-    proc = _start_in_own_group(args, tmp_path / "stderr.txt")
-    try:
+    with _in_own_group(args, tmp_path / "stderr.txt") as proc:
         wait_until_both_actors_deliver(out)
         tree = descendants(proc.pid)
         assert len(servers_of(tree)) == 2, tree
         os.killpg(proc.pid, signal.SIGINT)
         stdout, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert proc.returncode == 130, stderr[-2000:]
     assert "Ctrl-C again to abort" in stderr and "Traceback" not in stderr and "died" not in stderr, stderr[-2000:]
@@ -308,9 +297,8 @@ def test_ctrl_c_while_the_actors_start_kills_none_of_them(tmp_path):
     """Before an actor has made its own process group it is still in the terminal's job;
     it starts with SIGINT ignored, so the Ctrl-C stops the run instead of killing it."""
     out = tmp_path / "run"
-    proc = _start_in_own_group([*CLI_ARGS, "--servers", "2", "--steps", "100000", "--out", str(out)], tmp_path / "stderr.txt")
     seen: set[int] = set()  # every process of the run: actors, their servers
-    try:
+    with _in_own_group([*CLI_ARGS, "--servers", "2", "--steps", "100000", "--out", str(out)], tmp_path / "stderr.txt") as proc:
         deadline = time.monotonic() + 120
         # both actors exist: they import for seconds yet, still in this process group. (Not
         # earlier: a Ctrl-C in the milliseconds the learner spends in Process.start, where it
@@ -324,10 +312,6 @@ def test_ctrl_c_while_the_actors_start_kills_none_of_them(tmp_path):
             seen |= descendants(proc.pid)
             time.sleep(0.1)
         stdout, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert proc.returncode == 130, stderr[-2000:]
     assert "died" not in stderr and "KeyboardInterrupt" not in stderr and "Traceback" not in stderr, stderr[-2000:]

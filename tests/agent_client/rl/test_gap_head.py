@@ -67,6 +67,7 @@ def test_the_replay_keeps_each_observations_gap_apart_from_the_observation(tmp_p
     assert np.isnan(plain.sample(2, np.random.default_rng(1)).gaps.numpy()).all()
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_gap_loss_teaches_the_head_the_gap(tmp_path):
     """Frames whose brightness encodes the gap: after some updates the head reads it; the loss is logged."""
     cfg = Config(reward="gap", aux_gap=1.0, total_steps=10, batch_size=16, learning_rate=1e-3, torch_threads=1, log_every=1)

@@ -11,15 +11,15 @@ import os
 import shlex
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
 import torch
-from proctree import (
+from proctools import (
     assert_no_servers_left,
     descendants,
     procs,
+    vacc_job,
     wait_gone,
     wait_until_both_actors_deliver,
 )
@@ -44,19 +44,13 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
         "--buffer-size", "1000", "--episode-seconds", "3", "--eval-every", "0", "--log-every", "20",
         "--quiet", "--servers", "2", "--ray", "--out", str(out),
     ]  # fmt: skip
-    with open(tmp_path / "stderr.txt", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.DEVNULL, stderr=err)
-    try:
+    with vacc_job(args, stderr_path=tmp_path / "stderr.txt") as proc:
         wait_until_both_actors_deliver(out)
         tree = descendants(proc.pid)
         servers = [p for p in tree if "sim_server" in procs().get(p, (0, ""))[1]]
         assert len(servers) == 2, (tree, (tmp_path / "stderr.txt").read_text()[-2000:])
         proc.terminate()
         proc.wait(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert wait_gone(tree, timeout=20) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
     assert "Traceback" not in stderr and "SIGTERM received" not in stderr, stderr[-2000:]
@@ -71,18 +65,11 @@ def test_first_ctrl_c_of_a_ray_run_saves_a_checkpoint(tmp_path):
         "--buffer-size", "1000", "--episode-seconds", "3", "--eval-every", "0", "--log-every", "20",
         "--checkpoint-every", "100000", "--quiet", "--servers", "2", "--ray", "--out", str(out),
     ]  # fmt: skip
-    with open(tmp_path / "stderr.txt", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "vacc", *args], stdout=subprocess.PIPE, stderr=err, text=True,
-                                start_new_session=True)  # fmt: skip
-    try:
+    with vacc_job(args, own_group=True, stdout=subprocess.PIPE, stderr_path=tmp_path / "stderr.txt") as proc:
         wait_until_both_actors_deliver(out)
         tree = descendants(proc.pid)
         os.killpg(proc.pid, signal.SIGINT)
         stdout, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     stderr = (tmp_path / "stderr.txt").read_text(errors="replace")
     assert proc.returncode == 130, stderr[-2000:]
     assert "Traceback" not in stderr and "call failed" not in stderr, stderr[-2000:]

@@ -128,6 +128,7 @@ def _brake_share(tmp_path, brake_weight: float) -> float:
     return float(p[EMERGENCY_LEVEL] / (p[EMERGENCY_LEVEL] + p[17]))
 
 
+@pytest.mark.slow  # over ~5 s alone
 def test_the_brake_weight_tilts_a_torn_label_toward_the_full_brake(tmp_path):
     """Weighted cross-entropy's optimum on a state labelled brake and throttle equally is
     w / (w + 1) on the brake: 1/2 unweighted, 4/5 at weight 4."""

@@ -1,9 +1,15 @@
-"""Process-tree helpers for the multi-server tests: who spawned what, and is it gone."""
+"""Process helpers for the tests: start a job and always reap it, who spawned what, is it gone."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import os
+import signal
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -74,3 +80,52 @@ def wait_until_both_actors_deliver(run_dir: Path, timeout: float = 300.0) -> Non
             return
         time.sleep(0.3)
     raise AssertionError(f"{run_dir}: both actors had not delivered after {timeout:.0f} s (delivered: {sorted(seen) or 'none'})")
+
+
+class ProcessSpawnedInUnitTest(RuntimeError):
+    """A test of the unit tier started a Python process (tests/conftest.py)."""
+
+
+def reap_job(proc: subprocess.Popen, group: bool | None = None) -> None:
+    """Kill ``proc`` if it still runs (SIGKILL: its whole process group when it leads one, as
+    a terminal job), wait for it and close its pipes. Safe to call twice."""
+    if group is None:
+        group = _leads_its_group(proc.pid)
+    if proc.poll() is None:
+        if group:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+        else:
+            proc.kill()
+        proc.wait()
+    for pipe in (proc.stdin, proc.stdout, proc.stderr):
+        if pipe is not None:
+            pipe.close()
+
+
+def _leads_its_group(pid: int) -> bool:
+    try:
+        return os.getpgid(pid) == pid
+    except ProcessLookupError:
+        return False
+
+
+@contextlib.contextmanager
+def job(argv: list[str], *, own_group: bool = False, stdout=subprocess.DEVNULL, stderr_path: Path | None = None, **kw) -> Iterator[subprocess.Popen]:
+    """``argv`` as a child process for the ``with`` block, always reaped after it.
+
+    ``own_group``: a session of its own, as a job started from a terminal, so that
+    ``os.killpg(proc.pid, SIGINT)`` is a Ctrl-C. ``stderr_path``: where its stderr goes.
+    """
+    with contextlib.ExitStack() as stack:
+        err = stack.enter_context(open(stderr_path, "w")) if stderr_path is not None else kw.pop("stderr", None)
+        proc = subprocess.Popen(argv, stdout=stdout, stderr=err, text=True, start_new_session=own_group, **kw)
+    try:
+        yield proc
+    finally:
+        reap_job(proc, group=own_group)
+
+
+def vacc_job(args: list[str], **kw) -> contextlib.AbstractContextManager[subprocess.Popen]:
+    """``python -m vacc ARGS`` as a :func:`job`."""
+    return job([sys.executable, "-m", "vacc", *args], **kw)

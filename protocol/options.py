@@ -1,5 +1,5 @@
-"""Click option types that the simulator's command line shares with the clients' (a light
-module: click and :mod:`protocol` only, so a client imports it without the world)."""
+"""Click option types that the simulator's command line shares with the clients' (click and
+:mod:`protocol` only: both sides import it, and neither imports the other)."""
 
 from __future__ import annotations
 
