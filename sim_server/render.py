@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -43,7 +45,7 @@ import numpy as np
 from protocol.constants import CAMERA_HFOV, CAMERA_MOUNT_HEIGHT, CAMERA_SIZE
 from protocol.messages import MIN_IMAGE_SIDE
 from sim_server import scenery as sc
-from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, SceneState
+from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, CarView, SceneState
 
 __all__ = ["CameraConfig", "Renderer"]
 
@@ -129,15 +131,45 @@ class CameraConfig:
             meaningless values; callers clip first.
         """
         p = np.asarray(points, dtype=np.float64)
-        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
-        f = self.focal_px
-        cx, cy = self.principal_point
-        dy = p[..., 1] - self.mount_height
-        zc = p[..., 2] * cp - dy * sp
-        out = np.empty(p.shape[:-1] + (2,))
-        out[..., 0] = cx + f * p[..., 0] / zc
-        out[..., 1] = cy - f * (dy * cp + p[..., 2] * sp) / zc
-        return out
+        u, v = _pinhole(self)(p[..., 0], p[..., 1], p[..., 2])
+        return np.stack((u, v), axis=-1)
+
+
+_Projection = Callable[[Any, Any, Any], tuple[Any, Any]]
+
+
+def _pinhole(cfg: CameraConfig, *, shortcut: bool = False) -> _Projection:
+    """The camera's projection ``(X, Y, Z) -> (u, v)`` [m -> px], the one place it is written.
+
+    The returned function takes Python floats (a few points, cheaper than numpy) or
+    numpy arrays of one shape, elementwise with the same operations, so both give
+    the same bits.
+
+    Args:
+        cfg: the camera.
+        shortcut: for a level camera, evaluate ``u = X / Z f + c_x`` and
+            ``v = (h - Y) / Z f + c_y`` (fewer operations; the renderer's objects).
+            Its last bits can differ from the general form's, which the cached road
+            layers and :meth:`CameraConfig.project` use, so each caller keeps the form
+            it was drawn with (frames stay bit-identical).
+
+    Returns:
+        ``project(x, y, z) -> (u, v)``; points with ``Z <= 0`` give meaningless values.
+    """
+    f = cfg.focal_px
+    cx, cy = cfg.principal_point
+    h = cfg.mount_height
+    if shortcut and cfg.pitch == 0.0:
+        def project(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
+            return x / z * f + cx, (h - y) / z * f + cy
+        return project
+    cp, sp = math.cos(cfg.pitch), math.sin(cfg.pitch)
+
+    def project(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
+        dy = y - h
+        zc = z * cp - dy * sp
+        return cx + f * x / zc, cy - f * (dy * cp + z * sp) / zc
+    return project
 
 
 # --- car model ----------------------------------------------------------------------
@@ -146,34 +178,57 @@ class CameraConfig:
 _W2 = CAR_WIDTH / 2
 _H = CAR_HEIGHT
 _L = CAR_LENGTH
-_BOXES = {  # name: (x0, x1, y0, y1, z0, z1)
-    "under": (-_W2 + 0.1, _W2 - 0.1, 0.0, 0.36, 0.3, _L - 0.3),
-    "body": (-_W2, _W2, 0.30, 0.95, 0.0, _L),
-    "cabin": (-_W2 + 0.1, _W2 - 0.1, 0.95, _H, 0.75, _L - 1.2),
-    "plain": (-_W2, _W2, 0.0, _H, 0.0, _L),  # the whole car as one box (car_detail=False)
+
+
+class _Box(NamedTuple):
+    """An axis-aligned box in a car's own frame [m]."""
+
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+    z0: float
+    z1: float
+
+
+class _Decal(NamedTuple):
+    """A quad on a car's face at depth ``z`` in the car's own frame [m]."""
+
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+    z: float
+
+
+_BOXES = {
+    "under": _Box(-_W2 + 0.1, _W2 - 0.1, 0.0, 0.36, 0.3, _L - 0.3),
+    "body": _Box(-_W2, _W2, 0.30, 0.95, 0.0, _L),
+    "cabin": _Box(-_W2 + 0.1, _W2 - 0.1, 0.95, _H, 0.75, _L - 1.2),
+    "plain": _Box(-_W2, _W2, 0.0, _H, 0.0, _L),  # the whole car as one box (car_detail=False)
 }
-_DECALS_REAR = {  # name: (x0, x1, y0, y1, z) quads on the near faces
-    "window": (-_W2 + 0.2, _W2 - 0.2, 1.0, _H - 0.05, 0.75),
-    "bumper": (-_W2, _W2, 0.30, 0.40, 0.0),
-    "plate": (-0.26, 0.26, 0.44, 0.56, 0.0),
-    "tail_l": (-_W2 + 0.05, -_W2 + 0.40, 0.70, 0.84, 0.0),
-    "tail_r": (_W2 - 0.40, _W2 - 0.05, 0.70, 0.84, 0.0),
+_DECALS_REAR = {  # quads on the near faces
+    "window": _Decal(-_W2 + 0.2, _W2 - 0.2, 1.0, _H - 0.05, 0.75),
+    "bumper": _Decal(-_W2, _W2, 0.30, 0.40, 0.0),
+    "plate": _Decal(-0.26, 0.26, 0.44, 0.56, 0.0),
+    "tail_l": _Decal(-_W2 + 0.05, -_W2 + 0.40, 0.70, 0.84, 0.0),
+    "tail_r": _Decal(_W2 - 0.40, _W2 - 0.05, 0.70, 0.84, 0.0),
 }
 _DECALS_BRAKE = {  # lit lamps bloom a little and the centre brake light comes on
     "window": _DECALS_REAR["window"],
     "bumper": _DECALS_REAR["bumper"],
     "plate": _DECALS_REAR["plate"],
-    "brake_l": (-_W2 + 0.03, -_W2 + 0.44, 0.68, 0.86, 0.0),
-    "brake_r": (_W2 - 0.44, _W2 - 0.03, 0.68, 0.86, 0.0),
-    "brake_c": (-0.22, 0.22, _H - 0.13, _H - 0.07, 0.75),
+    "brake_l": _Decal(-_W2 + 0.03, -_W2 + 0.44, 0.68, 0.86, 0.0),
+    "brake_r": _Decal(_W2 - 0.44, _W2 - 0.03, 0.68, 0.86, 0.0),
+    "brake_c": _Decal(-0.22, 0.22, _H - 0.13, _H - 0.07, 0.75),
 }
 _DECALS_FRONT = {
-    "window": (-_W2 + 0.18, _W2 - 0.18, 1.0, _H - 0.04, 1.2),
-    "bumper": (-_W2, _W2, 0.30, 0.40, 0.0),
-    "plate": (-0.26, 0.26, 0.42, 0.52, 0.0),
-    "grille": (-0.45, 0.45, 0.55, 0.72, 0.0),
-    "head_l": (-_W2 + 0.08, -_W2 + 0.45, 0.64, 0.76, 0.0),
-    "head_r": (_W2 - 0.45, _W2 - 0.08, 0.64, 0.76, 0.0),
+    "window": _Decal(-_W2 + 0.18, _W2 - 0.18, 1.0, _H - 0.04, 1.2),
+    "bumper": _Decal(-_W2, _W2, 0.30, 0.40, 0.0),
+    "plate": _Decal(-0.26, 0.26, 0.42, 0.52, 0.0),
+    "grille": _Decal(-0.45, 0.45, 0.55, 0.72, 0.0),
+    "head_l": _Decal(-_W2 + 0.08, -_W2 + 0.45, 0.64, 0.76, 0.0),
+    "head_r": _Decal(_W2 - 0.45, _W2 - 0.08, 0.64, 0.76, 0.0),
 }
 # corner index within a box = ix + 2*iy + 4*iz
 _FACE_NEAR = (0, 1, 3, 2)
@@ -182,19 +237,32 @@ _FACE_RIGHT = (1, 5, 7, 3)
 _FACE_TOP = (2, 3, 7, 6)
 
 
+class _Visible(NamedTuple):
+    """When a box's side face shows: ``side`` ``left`` (its left side ``at`` [m] is
+    right of the camera), ``right`` (left of the camera) or ``top`` (the camera is
+    above its top ``at`` [m]); in the car's frame, scaled with the car."""
+
+    side: str
+    at: float  # [m]
+
+
+class _Face(NamedTuple):
+    """A face of a car model: ``role`` names its colour; ``when`` is None if always drawn."""
+
+    role: str
+    when: _Visible | None
+
+
 @dataclass(frozen=True)
 class _CarTemplate:
     """Corner points of a car model and its faces in drawing order.
 
-    ``faces[j] = (role, condition)``: role names the colour; condition is ``None``
-    (always drawn), ``("left", x)`` (drawn when the box's left side ``x`` is right of
-    the camera), ``("right", x)`` or ``("top", y)`` (drawn when the camera is above
-    ``y``). ``index[j]`` holds the 4 point indices of face j.
+    ``index[j]`` holds the 4 point indices of ``faces[j]``.
     """
 
     points: np.ndarray  # (N, 3) [m]
     index: np.ndarray  # (F, 4) int
-    faces: tuple[tuple[str, tuple[str, float] | None], ...]
+    faces: tuple[_Face, ...]
 
 
 def _make_template(kind: str, lod: bool = False, tiny: bool = False) -> _CarTemplate:
@@ -217,7 +285,7 @@ def _make_template(kind: str, lod: bool = False, tiny: bool = False) -> _CarTemp
         decals = {}
     pts: list[tuple[float, float, float]] = []
     index: list[list[int]] = []
-    faces: list[tuple[str, tuple[str, float] | None]] = []
+    faces: list[_Face] = []
     for name in boxes:
         x0, x1, y0, y1, z0, z1 = _BOXES[name]
         if oncoming:  # mirrored: the cabin sits further from the near (front) face
@@ -226,21 +294,21 @@ def _make_template(kind: str, lod: bool = False, tiny: bool = False) -> _CarTemp
         pts += [(x, y, z) for z in (z0, z1) for y in (y0, y1) for x in (x0, x1)]
         if name == "under" or tiny:
             index.append([o + c for c in _FACE_NEAR])
-            faces.append(("under" if name == "under" else ("near" if name == "body" else "window"), None))
+            faces.append(_Face("under" if name == "under" else ("near" if name == "body" else "window"), None))
             continue
-        sides: tuple[tuple[tuple[int, ...], str, tuple[str, float]], ...] = (
-            (_FACE_LEFT, "left", ("left", x0)), (_FACE_RIGHT, "right", ("right", x1)),
-            (_FACE_TOP, "top", ("top", y1)))
+        sides: tuple[tuple[tuple[int, ...], str, _Visible], ...] = (
+            (_FACE_LEFT, "left", _Visible("left", x0)), (_FACE_RIGHT, "right", _Visible("right", x1)),
+            (_FACE_TOP, "top", _Visible("top", y1)))
         if lod and name == "cabin":
             sides = ()
         for face, role, cond in (*sides, (_FACE_NEAR, "near", None)):
             index.append([o + c for c in face])
-            faces.append((role, cond))
+            faces.append(_Face(role, cond))
     for name, (x0, x1, y0, y1, z) in decals.items():
         o = len(pts)
         pts += [(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]
         index.append([o, o + 1, o + 2, o + 3])
-        faces.append((name.split("_")[0], None))
+        faces.append(_Face(name.split("_")[0], None))
     return _CarTemplate(np.array(pts, np.float64), np.array(index, np.intp), tuple(faces))
 
 
@@ -268,8 +336,8 @@ def _shade(rgb: tuple[float, ...] | np.ndarray, lam: float, fog: float) -> tuple
             min(b, 255.0) * g + _HB * fog)
 
 
-def _emit(rgb: tuple[float, ...], fog: float) -> tuple[float, float, float]:
-    """An emissive colour seen through haze."""
+def _haze(rgb: tuple[float, ...], fog: float) -> tuple[float, float, float]:
+    """A colour (lit or emissive) seen through haze of density ``fog`` (0 to 1)."""
     g = 1.0 - fog
     return (rgb[0] * g + _HR * fog, rgb[1] * g + _HG * fog, rgb[2] * g + _HB * fog)
 
@@ -291,35 +359,16 @@ def _clip_near(poly: np.ndarray, z_near: float) -> np.ndarray:
     return np.array(out) if out else np.zeros((0, 3))
 
 
-def _swept_rect(x0: float, x1: float, z0: float, z1: float, a: float, b: float) -> list[tuple[float, float]]:
-    """Ground rectangle ``[x0, x1] x [z0, z1]`` swept by ``(a, b)`` [m]: a hexagon.
-
-    This is the shadow of a box whose top is displaced by ``(a, b)`` on the ground.
-    Returned as exactly 6 ``(X, Z)`` points (repeated last point as padding) so many
-    shadows can be projected in one batch.
-    """
-    corners = ((x0, z0), (x1, z0), (x1, z1), (x0, z1))  # counter-clockwise in (X, Z)
-    leads = (-b > 0, a > 0, b > 0, -a > 0)  # edge c_i c_i+1 faces along the sweep
-    pts: list[tuple[float, float]] = []
-    for i, (x, z) in enumerate(corners):
-        prev_lead, next_lead = leads[i - 1], leads[i]
-        if not prev_lead:
-            pts.append((x, z))
-        if prev_lead or next_lead:
-            pts.append((x + a, z + b))
-        if prev_lead and not next_lead:
-            pts.append((x, z))
-    pts += [pts[-1]] * (6 - len(pts))
-    return pts
-
-
 def _fix(uv: np.ndarray) -> np.ndarray:
     """Pixel coordinates to cv2 fixed point (``SHIFT`` fractional bits), int32."""
     return np.rint(uv * ONE).astype(np.int32)
 
 
 def _shrink(uv: np.ndarray, d: float = AA_INSET) -> np.ndarray:
-    """Pull polygon vertices ``(..., n, 2)`` [px] towards their centroid, per axis.
+    """Pull polygon vertices ``(..., n, 2)`` [px] towards their centroid by ``d`` [px] per axis.
+
+    The one shrink step: ``d = AA_INSET`` for anti-aliased fills, 0.5 for ``LINE_8``
+    fills, which paint every pixel whose centre is on or inside the outline.
 
     cv2's anti-aliased fill covers about :data:`AA_INSET` px beyond every edge, so
     a polygon drawn as given comes out 1.4 px too wide and tall. Shrinking each
@@ -327,6 +376,10 @@ def _shrink(uv: np.ndarray, d: float = AA_INSET) -> np.ndarray:
     rectangles that car and building faces are (a level camera sees vertical planes
     facing it as rectangles) and nearly for their trapezoidal sides. Parts thinner
     than 1.4 px collapse to a line, which cv2 draws about 1 px wide.
+
+    The centroid is summed vertex by vertex in order (numpy reduces a middle axis
+    row by row), and an offset inside ``d`` becomes a zero whose sign the later
+    rounding to fixed point drops, so small and batched calls give the same bits.
     """
     c = uv.sum(axis=-2, keepdims=True)
     c *= 1.0 / uv.shape[-2]
@@ -334,35 +387,29 @@ def _shrink(uv: np.ndarray, d: float = AA_INSET) -> np.ndarray:
     return c + np.copysign(np.maximum(np.abs(r) - d, 0.0), r)
 
 
-def _inset(poly: np.ndarray, d: float = AA_INSET) -> np.ndarray:
-    """Offset each edge of a convex polygon ``(n, 2)`` [px] inwards by ``d`` [px] (miter).
+class _SweepPattern(NamedTuple):
+    """Which corners of a ground rectangle make up its shadow hexagon for one sun.
 
-    ``d = AA_INSET`` for anti-aliased fills; 0.5 for ``LINE_8`` fills, which paint
-    every pixel whose centre is on or inside the outline.
+    Point ``k`` of the hexagon is ``(x[ix[k]] + moved[k] a, z[iz[k]] + moved[k] b)``
+    with ``x = (x0, x1)``, ``z = (z0, z1)`` and ``(a, b)`` [m] the shadow's ground
+    displacement; 6 points, the last repeated as padding where the sweep gives 4.
     """
-    e = np.roll(poly, -1, axis=0) - poly
-    area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
-    n = np.stack([-e[:, 1], e[:, 0]], 1) * (1.0 if area2 > 0 else -1.0)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    n_prev = np.roll(n, 1, axis=0)
-    denom = np.maximum(1.0 + np.sum(n * n_prev, axis=1, keepdims=True), 0.2)
-    out = poly + d * (n + n_prev) / denom
-    area2_out = float(np.sum(out[:, 0] * np.roll(out[:, 1], -1) - np.roll(out[:, 0], -1) * out[:, 1]))
-    if area2_out * area2 <= 0:  # thinner than the AA fringe: fall back to per-axis shrink
-        return _shrink(poly)
-    return out
+
+    ix: np.ndarray  # (6,) int: 0 for x0, 1 for x1
+    iz: np.ndarray  # (6,) int: 0 for z0, 1 for z1
+    moved: np.ndarray  # (6,) float: 1.0 where the point is displaced
+    corners: list[tuple[int, int, float]]  # the same as Python scalars (ix, iz, moved)
 
 
-def _sweep_pattern(a: float, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Which corners make up :func:`_swept_rect` for a sweep with the signs of ``(a, b)``.
+def _sweep_pattern(a: float, b: float) -> _SweepPattern:
+    """The shadow hexagon of a box whose top is displaced by ``(a, b)`` on the ground.
 
-    Returns ``(ix, iz, moved)``, 6 entries each: the hexagon's point ``k`` is
-    ``(x[ix[k]] + moved[k] a, z[iz[k]] + moved[k] b)`` with ``x = (x0, x1)`` and
-    ``z = (z0, z1)``. The pattern depends only on the signs, so one pattern serves
-    every box of a frame (all heights are positive).
+    The shadow is the box's footprint swept along ``(a, b)``. The pattern depends only
+    on the signs, so one pattern serves every box of a frame (all heights are
+    positive).
     """
-    corners = ((0, 0), (1, 0), (1, 1), (0, 1))
-    leads = (-b > 0, a > 0, b > 0, -a > 0)
+    corners = ((0, 0), (1, 0), (1, 1), (0, 1))  # counter-clockwise in (X, Z)
+    leads = (-b > 0, a > 0, b > 0, -a > 0)  # edge c_i c_i+1 faces along the sweep
     pts: list[tuple[int, int, int]] = []
     for i, (x, z) in enumerate(corners):
         prev_lead, next_lead = leads[i - 1], leads[i]
@@ -374,21 +421,24 @@ def _sweep_pattern(a: float, b: float) -> tuple[np.ndarray, np.ndarray, np.ndarr
             pts.append((x, z, 0))
     pts += [pts[-1]] * (6 - len(pts))
     ix, iz, mv = (np.array(c) for c in zip(*pts, strict=True))
-    return ix, iz, mv.astype(np.float64)
+    moved = mv.astype(np.float64)
+    return _SweepPattern(ix, iz, moved, list(zip(ix.tolist(), iz.tolist(), moved.tolist(), strict=True)))
 
 
 def _swept_many(x0: np.ndarray, x1: np.ndarray, z0: np.ndarray, z1: np.ndarray, a: np.ndarray,
-                b: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
-    """:func:`_swept_rect` for many boxes at once: ``(N, 6, 3)`` ground points (Y = 0)."""
-    ix, iz, mv = pattern[:3]
+                b: np.ndarray, pattern: _SweepPattern) -> np.ndarray:
+    """Shadow hexagons of many boxes at once: ``(N, 6, 3)`` ground points (Y = 0) [m]."""
     out = np.zeros((len(x0), 6, 3))
-    out[:, :, 0] = np.where(ix, x1[:, None], x0[:, None]) + mv * a[:, None]
-    out[:, :, 2] = np.where(iz, z1[:, None], z0[:, None]) + mv * b[:, None]
+    out[:, :, 0] = np.where(pattern.ix, x1[:, None], x0[:, None]) + pattern.moved * a[:, None]
+    out[:, :, 2] = np.where(pattern.iz, z1[:, None], z0[:, None]) + pattern.moved * b[:, None]
     return out
 
 
 def _inset_many(poly: np.ndarray, d: float = AA_INSET) -> np.ndarray:
-    """:func:`_inset` for a stack of convex polygons ``(N, n, 2)`` [px]."""
+    """Offset each edge of convex polygons ``(N, n, 2)`` [px] inwards by ``d`` [px] (miter).
+
+    Polygons thinner than the offset fall back to the per-axis :func:`_shrink`.
+    """
     x, y = poly[..., 0], poly[..., 1]
     xr, yr = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
     area2 = np.sum(x * yr - xr * y, axis=-1)
@@ -431,6 +481,118 @@ def _fill_batched(img: np.ndarray, polys: np.ndarray, color: float | tuple, line
         cv2.fillConvexPoly(img, p, color, line, SHIFT)
 
 
+# --- records: scene objects, visible cars, the frame's sun and draw lists -------------
+_RGB = tuple[float, float, float]
+
+
+class _Tree(NamedTuple):
+    """A roadside tree in road coordinates, lit for the frame's sun but not yet hazed."""
+
+    s: float  # [m] road position of the trunk
+    x: float  # [m] lateral position of the trunk
+    crown_y: float  # [m] height of the crown's centre
+    radius: float  # [m] crown radius
+    lit_dx: float  # [m] the sunlit spot's offset from the crown's centre, lateral
+    lit_dy: float  # [m] the sunlit spot's offset from the crown's centre, up
+    crown_rgb: _RGB  # crown colour in shade
+    lit_rgb: _RGB  # colour of the sunlit spot
+    shadow_x: tuple[float, ...]  # [m] the crown's shadow hexagon on the ground, lateral
+    shadow_s: tuple[float, ...]  # [m] the crown's shadow hexagon, road position
+    shadow_reach: float  # [m] how far the shadow may reach nearer to the camera than ``s``
+
+
+class _Building(NamedTuple):
+    """A roadside building in road coordinates, lit for the frame's sun but not yet hazed."""
+
+    s: float  # [m] road position of the face towards the camera
+    x_wall: float  # [m] lateral position of the road-facing wall
+    x_far: float  # [m] lateral position of the back wall
+    length: float  # [m] along the road
+    height: float  # [m]
+    floors: int  # window bands on the road-facing wall
+    near_rgb: _RGB  # colour of the face towards the camera
+    wall_rgb: _RGB  # colour of the road-facing wall
+    shadow_x: tuple[float, ...]  # [m] the shadow hexagon on the ground, lateral
+    shadow_s: tuple[float, ...]  # [m] the shadow hexagon, road position
+    shadow_reach: float  # [m] how far the shadow reaches nearer to the camera than ``s``
+
+
+class _SceneryWindow(NamedTuple):
+    """The scenery of the road ahead, far to near."""
+
+    trees: list[_Tree]
+    neg_s: list[float]  # [m] ``-tree.s``, ascending, for bisection
+    buildings: list[_Building]
+
+
+class _CarItem(NamedTuple):
+    """A car in front of the camera, placed in the camera's frame."""
+
+    z_near: float  # [m] camera to the car's face nearest to it, along the road
+    x: float  # [m] lateral position of the car's centre
+    oncoming: bool  # faces the camera (beyond the median)
+    car: CarView
+    is_lead: bool
+
+
+class _Sun(NamedTuple):
+    """The frame's light."""
+
+    light: tuple[float, float, float]  # unit vector towards the sun (X, Y, Z)
+    shift: tuple[float, float]  # [m/m] ground displacement (X, Z) of a shadow per metre of height
+    pattern: _SweepPattern  # shadow hexagon corners for this sun
+
+
+class _BuildingDraw(NamedTuple):
+    """A visible building: its first quad in :attr:`_SceneryView.quads` and hazed colours.
+
+    The quads are the face towards the camera (when ``near``), the road-facing wall,
+    then ``windows`` window bands.
+    """
+
+    quad: int
+    near: bool  # the face towards the camera is in front of the camera
+    windows: int
+    near_rgb: _RGB
+    wall_rgb: _RGB
+    window_rgb: _RGB
+
+
+class _Disc(NamedTuple):
+    """A filled circle in cv2 fixed point."""
+
+    center: tuple[int, int]  # [px / ONE]
+    radius: int  # [px / ONE]
+    rgb: _RGB
+
+
+class _TreeDraw(NamedTuple):
+    """A visible tree: trunk quad (None when its crown hides it), crown, sunlit spot."""
+
+    trunk: int | None  # index in :attr:`_SceneryView.quads`
+    trunk_rgb: _RGB | None
+    crown: _Disc
+    lit: _Disc | None
+
+
+class _SceneryView(NamedTuple):
+    """What the scenery adds to one frame, far to near, in cv2 fixed point."""
+
+    quads: np.ndarray  # (N, 4, 2) int32: building faces, windows and trunks
+    buildings: list[_BuildingDraw]
+    trees: list[_TreeDraw]
+    shadows: np.ndarray  # (M, 6, 2) int32 ground shadow hexagons
+    clipped: list[np.ndarray]  # near-clipped shadow polygons of other sizes
+
+
+class _CarShadows(NamedTuple):
+    """The cars' ground shadows in cv2 fixed point."""
+
+    hexes: np.ndarray  # (N, 6, 2) int32: traffic, shrunk for LINE_8
+    clipped: list[np.ndarray]  # traffic shadows clipped at the camera
+    soft: np.ndarray | None  # the lead's, shrunk for an anti-aliased fill
+
+
 class Renderer:
     """Renders :class:`~sim_server.scene.SceneState` snapshots to RGB images.
 
@@ -452,35 +614,24 @@ class Renderer:
         self.scenery = scenery
         self.car_detail = car_detail
         self._sky_cache: dict[int, np.ndarray] = {}
-        self._pattern: dict[tuple[float, float], tuple] = {}
-        self._win: tuple | None = None
+        self._pattern: dict[tuple[float, float], _SweepPattern] = {}
+        self._win: _SceneryWindow | None = None
         self._win_key: tuple | None = None
         self._scenery = sc.SceneryCache()
         self._face_cache: dict[tuple, tuple[np.ndarray, list]] = {}
         cfg = self.config
         self._f = cfg.focal_px
         self._h = cfg.mount_height
-        self._level = cfg.pitch == 0.0  # fast projection path
+        self._level = cfg.pitch == 0.0  # cars beside the picture can be culled by X/Z alone
         self._cx, self._cy = cfg.principal_point
-        self._c = np.array([self._cx, self._cy])
+        self._project = _pinhole(cfg, shortcut=True)  # scenery, cars and shadows
+        self._project_exact = _pinhole(cfg)  # the form CameraConfig.project uses
         self._horizon = cfg.vanishing_point[1]
         # smallest ground depth in view: below this the road is under the image
         self._z_ground_min = max(cfg.near, 0.5)
         # first row that holds only ground (pure haze at the horizon): rows above it are
         # sky and hills (per seed), rows from it down come from the ground layers
         self._g0 = min(max(int(math.floor(self._horizon)), 0), cfg.height)
-        f, cx, cy, h = self._f, self._cx, self._cy, self._h
-        if self._level:  # the projection of one point in Python scalars, same order as _proj
-            def proj(x: float, y: float, z: float) -> tuple[float, float]:
-                return x / z * f + cx, (h - y) / z * f + cy
-        else:
-            cp, sp = math.cos(cfg.pitch), math.sin(cfg.pitch)
-
-            def proj(x: float, y: float, z: float) -> tuple[float, float]:
-                dy = y - h
-                zc = z * cp - dy * sp
-                return cx + f * x / zc, cy - f * (dy * cp + z * sp) / zc
-        self._proj_py = proj
 
     # ------------------------------------------------------------------ background
     def _sky_gradient(self, height: int | None = None) -> np.ndarray:
@@ -606,16 +757,9 @@ class Renderer:
 
     # ---------------------------------------------------------------------- frame
     def _proj(self, p: np.ndarray) -> np.ndarray:
-        """:meth:`CameraConfig.project` with the constants hoisted (hot path)."""
-        if self._level:
-            z = p[..., 2]
-            out = np.empty(p.shape[:-1] + (2,))
-            np.divide(p[..., 0], z, out=out[..., 0])
-            np.divide(self._h - p[..., 1], z, out=out[..., 1])
-            out *= self._f
-            out += self._c
-            return out
-        return self.config.project(p)
+        """Project points ``(..., 3)`` [m] to pixels ``(..., 2)`` with :attr:`_project`."""
+        u, v = self._project(p[..., 0], p[..., 1], p[..., 2])
+        return np.stack((u, v), axis=-1)
 
     def render(self, scene: SceneState) -> np.ndarray:
         """Render one camera frame.
@@ -629,30 +773,55 @@ class Renderer:
         Raises:
             ValueError: a car is in a lane that does not exist.
         """
+        s_cam = scene.host_s - self.config.setback  # [m] camera position along the road
+        img, dark = self._backdrop(scene.scenery_seed, s_cam)
+        sun = self._sun(scene.light_azimuth, scene.light_elevation)
+        cars = self._cars_ahead(scene)
+        view = self._scenery_view(scene.scenery_seed, s_cam, sun) if self.scenery else None
+        # 1. shadows on the ground (nothing stands on the ground in front of them)
+        self._draw_shadows(img, dark, view, cars, sun)
+        # 2. buildings, then trees far to near: they stand beside the road, farther out
+        # than any car, so they never hide a car (a car may hide them)
+        if view is not None:
+            self._draw_buildings(img, view)
+            self._draw_trees(img, view)
+        # 3. cars, far to near
+        self._draw_cars(img, cars, sun.light)
+        return img
+
+    def _backdrop(self, seed: int, s_cam: float) -> tuple[np.ndarray, np.ndarray]:
+        """A new frame holding sky and ground, and the shadowed twin of its ground rows.
+
+        Args:
+            seed: scenery seed (the hills).
+            s_cam: camera position along the road [m] (the dash phase).
+        """
         cfg = self.config
-        s_cam = scene.host_s - cfg.setback  # [m] camera position along the road
         phase = s_cam % sc.DASH_PERIOD
         bucket = int(phase / sc.DASH_PERIOD * PHASE_BUCKETS) % PHASE_BUCKETS
         ground, dark = self._background(bucket)
         g0 = self._g0
         img = np.empty((cfg.height, cfg.width, 3), np.uint8)
         if g0 > 0:
-            img[:g0] = self._sky(scene.scenery_seed)
+            img[:g0] = self._sky(seed)
         img[g0:] = ground
+        return img, dark
 
-        el = max(scene.light_elevation, MIN_SUN_ELEVATION)
-        az = scene.light_azimuth
-        light = (math.sin(az) * math.cos(el), math.sin(el), math.cos(az) * math.cos(el))
-        # ground displacement of a shadow per metre of height [m/m]
-        sh = (-math.sin(az) / math.tan(el), -math.cos(az) / math.tan(el))
-        pattern = self._pattern.get(sh)
+    def _sun(self, azimuth: float, elevation: float) -> _Sun:
+        """The light vector, shadow displacement and shadow pattern for a sun [rad]."""
+        el = max(elevation, MIN_SUN_ELEVATION)
+        light = (math.sin(azimuth) * math.cos(el), math.sin(el), math.cos(azimuth) * math.cos(el))
+        shift = (-math.sin(azimuth) / math.tan(el), -math.cos(azimuth) / math.tan(el))
+        pattern = self._pattern.get(shift)
         if pattern is None:
             if len(self._pattern) > 64:
                 self._pattern.clear()
-            ix, iz, mv = _sweep_pattern(*sh)
-            pattern = self._pattern[sh] = (ix, iz, mv, list(zip(ix.tolist(), iz.tolist(), mv.tolist(),
-                                                               strict=True)))
+            pattern = self._pattern[shift] = _sweep_pattern(*shift)
+        return _Sun(light, shift, pattern)
 
+    def _cars_ahead(self, scene: SceneState) -> list[_CarItem]:
+        """The cars between the near and far planes, far to near."""
+        cfg = self.config
         lead = scene.lead
         cars = []
         for car in scene.cars:
@@ -661,120 +830,105 @@ class Renderer:
             z_near = car.dx + cfg.setback - (car.length if oncoming else 0.0)
             if z_near < cfg.near or z_near > cfg.far:
                 continue  # beside or behind the camera: outside the field of view
-            cars.append((z_near, x_c, oncoming, car, car is lead))
-        cars.sort(key=lambda c: -c[0])  # far to near
+            cars.append(_CarItem(z_near, x_c, oncoming, car, car is lead))
+        cars.sort(key=lambda c: -c.z_near)  # far to near
+        return cars
 
-        # 1. shadows on the ground (nothing stands on the ground in front of them)
+    def _draw_shadows(self, img: np.ndarray, dark: np.ndarray, view: _SceneryView | None,
+                      cars: list[_CarItem], sun: _Sun) -> None:
+        """Ground shadows: scenery and traffic hard-edged through one mask, the lead's soft."""
         hard: list[np.ndarray] = []  # (N, 6, 2) fixed-point hexagons, hard-edged
         extra: list[np.ndarray] = []  # near-clipped polygons of other sizes (rare)
-        view = None
-        if self.scenery:
-            view = self._scenery_view(scene.scenery_seed, s_cam, light, sh, pattern)
-            hard.append(view[2])
-            extra += view[3]
+        if view is not None:
+            hard.append(view.shadows)
+            extra += view.clipped
         soft = None
         if cars:
-            fx, clipped, soft = self._car_shadows(cars, sh, pattern)
-            hard.append(fx)
-            extra += clipped
+            car_shadows = self._car_shadows(cars, sun)
+            hard.append(car_shadows.hexes)
+            extra += car_shadows.clipped
+            soft = car_shadows.soft
         polys = np.concatenate(hard) if len(hard) > 1 else (hard[0] if hard else np.zeros((0, 6, 2), np.int32))
         if len(polys) or extra:
-            shadow_mask = np.zeros((cfg.height, cfg.width), np.uint8)
-            y0, y1 = cfg.height, -1
-            if len(polys):
-                ys = polys[:, :, 1]
-                y0, y1 = int(ys.min()) >> SHIFT, (int(ys.max()) >> SHIFT) + 1
-                _fill_batched(shadow_mask, polys, 255, cv2.LINE_8)
-            for poly in extra:
-                cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
-                y0 = min(y0, int(poly[:, 1].min()) >> SHIFT)
-                y1 = max(y1, (int(poly[:, 1].max()) >> SHIFT) + 1)
-            r0, r1 = max(y0, g0), min(y1 + 1, cfg.height)
-            if r1 > r0:
-                cv2.copyTo(dark[r0 - g0:r1 - g0], shadow_mask[r0:r1], img[r0:r1])
+            self._mask_shadows(img, dark, polys, extra)
         if soft is not None:
             self._soft_shadow(img, soft)
 
-        # 2. buildings, then trees far to near: they stand beside the road, farther out
-        # than any car, so they never hide a car (a car may hide them)
-        if view is not None:
-            if view[0] is not None:
-                self._draw_buildings(img, view[0], light)
-            if view[1] is not None:
-                self._draw_trees(img, view[1])
-        # 3. cars, far to near
-        if self._level:  # cars wholly beside the picture (their shadows are drawn above)
+    def _mask_shadows(self, img: np.ndarray, dark: np.ndarray, polys: np.ndarray,
+                      extra: list[np.ndarray]) -> None:
+        """Copy the shadowed ground under the fixed-point polygons into ``img``."""
+        cfg = self.config
+        g0 = self._g0
+        shadow_mask = np.zeros((cfg.height, cfg.width), np.uint8)
+        y0, y1 = cfg.height, -1
+        if len(polys):
+            ys = polys[:, :, 1]
+            y0, y1 = int(ys.min()) >> SHIFT, (int(ys.max()) >> SHIFT) + 1
+            _fill_batched(shadow_mask, polys, 255, cv2.LINE_8)
+        for poly in extra:
+            cv2.fillConvexPoly(shadow_mask, poly, 255, cv2.LINE_8, SHIFT)
+            y0 = min(y0, int(poly[:, 1].min()) >> SHIFT)
+            y1 = max(y1, (int(poly[:, 1].max()) >> SHIFT) + 1)
+        r0, r1 = max(y0, g0), min(y1 + 1, cfg.height)
+        if r1 > r0:
+            cv2.copyTo(dark[r0 - g0:r1 - g0], shadow_mask[r0:r1], img[r0:r1])
+
+    def _draw_cars(self, img: np.ndarray, cars: list[_CarItem], light: tuple) -> None:
+        """Cars far to near, anti-aliased (their shadows are already drawn)."""
+        if self._level:  # cars wholly beside the picture
             cars = [c for c in cars if self._in_view(c)]
         if cars:
             fq, cols = self._car_geometry(cars, light)
             fill = cv2.fillConvexPoly
             for j, col in enumerate(cols):
                 fill(img, fq[j], col, AA, SHIFT)
-        return img
 
-    def _in_view(self, item: tuple) -> bool:
+    def _in_view(self, item: _CarItem) -> bool:
         """Whether a car's box reaches into the picture (level camera: u depends on X/Z only)."""
-        z_near, x_c, _, car, _ = item
-        x0, x1 = x_c - 0.5 * car.width, x_c + 0.5 * car.width
-        z_far = z_near + car.length
-        right = self._cx + self._f * x1 / (z_near if x1 >= 0 else z_far)
-        left = self._cx + self._f * x0 / (z_near if x0 <= 0 else z_far)
+        x0, x1 = item.x - 0.5 * item.car.width, item.x + 0.5 * item.car.width
+        z_far = item.z_near + item.car.length
+        right = self._project_exact(x1, 0.0, item.z_near if x1 >= 0 else z_far)[0]
+        left = self._project_exact(x0, 0.0, item.z_near if x0 <= 0 else z_far)[0]
         return right >= -2.0 and left <= self.config.width + 1.0
 
     # ------------------------------------------------------------------- shadows
-    def _car_shadows(self, cars: list, sh: tuple[float, float], pattern: tuple) -> tuple:
+    def _car_shadows(self, cars: list[_CarItem], sun: _Sun) -> _CarShadows:
         """Ground shadows of the cars' boxes in fixed point.
 
         The shadow of a box on the ground is its footprint swept along the sun's
-        ground displacement: a hexagon (:func:`_swept_rect`), here in Python scalars
-        (a dozen cars). Returns ``(hexes, clipped, soft)``: the traffic's hexagons
-        ``(N, 6, 2)`` shrunk for ``LINE_8``, near-clipped polygons of other sizes, and
-        the lead's polygon shrunk for an anti-aliased fill (or None).
+        ground displacement: a hexagon (:func:`_sweep_pattern`), built here in Python
+        scalars (a dozen cars) and projected in one batch.
         """
         zmin = self._z_ground_min
-        proj = self._proj_py
-        pat = pattern[3]
-        hexes: list[int] = []
+        traffic: list[list[tuple[float, float, float]]] = []  # hexagons clear of the camera
         clipped = []
         soft = None
-        level, f, cx, cy, h = self._level, self._f, self._cx, self._cy, self._h
-        for z_near, x_c, _, car, is_lead in cars:
+        for item in cars:
+            z_near, x_c, car, is_lead = item.z_near, item.x, item.car, item.is_lead
             if z_near > SHADOW_FAR and not is_lead:
                 continue  # a sliver at the horizon, like the scenery's
             hgt = 0.92 * car.height  # the cabin is narrower than the footprint
-            a, b = sh[0] * hgt, sh[1] * hgt
+            a, b = sun.shift[0] * hgt, sun.shift[1] * hgt
             x0 = x_c - 0.5 * car.width
             xs, zs = (x0, x0 + car.width), (z_near, z_near + car.length)
-            pts = [(xs[i] + m * a, zs[k] + m * b) for i, k, m in pat]
+            pts = [(xs[i] + m * a, 0.0, zs[k] + m * b) for i, k, m in sun.pattern.corners]
             d = AA_INSET if is_lead else 0.5
-            if min(z for _, z in pts) < zmin:  # rare: a shadow reaching under the camera
-                p3 = _clip_near(np.array([(x, 0.0, z) for x, z in pts]), zmin)
+            if min(p[2] for p in pts) < zmin:  # rare: a shadow reaching under the camera
+                p3 = _clip_near(np.array(pts), zmin)
                 if len(p3) < 3:
                     continue
                 poly = _fix(_shrink(self._proj(p3), d))
+            elif is_lead:
+                poly = _fix(_shrink(self._proj(np.array(pts)), d))
             else:
-                if level:  # the projection inlined, in the same order as _proj
-                    uv = [(x / z * f + cx, h / z * f + cy) for x, z in pts]
-                else:
-                    uv = [proj(x, 0.0, z) for x, z in pts]
-                cu = sum(u for u, _ in uv) * (1.0 / 6.0)
-                cv = sum(v for _, v in uv) * (1.0 / 6.0)
-                flat = []
-                for u, v in uv:
-                    du, dv = u - cu, v - cv
-                    du = (du - d if du > d else 0.0) if du >= 0 else (du + d if du < -d else 0.0)
-                    dv = (dv - d if dv > d else 0.0) if dv >= 0 else (dv + d if dv < -d else 0.0)
-                    flat.append(round((cu + du) * ONE))
-                    flat.append(round((cv + dv) * ONE))
-                if not is_lead:
-                    hexes += flat
-                    continue
-                poly = np.array(flat, np.int32).reshape(6, 2)
+                traffic.append(pts)
+                continue
             if is_lead:
                 soft = poly
             else:
                 clipped.append(poly)
-        return np.array(hexes, np.int32).reshape(-1, 6, 2), clipped, soft
+        hexes = _fix(_shrink(self._proj(np.array(traffic, np.float64).reshape(-1, 6, 3)), 0.5))
+        return _CarShadows(hexes, clipped, soft)
 
     def _soft_shadow(self, img: np.ndarray, poly: np.ndarray) -> None:
         """Darken the ground under ``poly`` with anti-aliased edges (the lead car's)."""
@@ -792,17 +946,16 @@ class Renderer:
         roi = img[y0:y1, x0:x1]
         cv2.multiply(roi, cv2.cvtColor(fac, cv2.COLOR_GRAY2RGB), dst=roi, scale=1 / 255)
 
-    def _scenery_window(self, seed: int, s_cam: float, light: tuple, sh: tuple, pattern: tuple) -> tuple:
-        """The scenery of the road ahead as plain Python tuples, far to near.
+    # ------------------------------------------------------------------- scenery
+    def _scenery_window(self, seed: int, s_cam: float, sun: _Sun) -> _SceneryWindow:
+        """The scenery of the road ahead, far to near, lit but not hazed.
 
-        Cached until the camera enters a new road tile or the light changes. Per tree:
-        ``(s, x, yc, r, lit_dx, lit_dy, crown_rgb, lit_rgb, shadow_x, shadow_s, reach)``;
-        per building: ``(s, x_wall, x_far, length, height, floors, near_rgb, wall_rgb,
-        shadow_x, shadow_s, shadow_reach)``, colours lit but not yet hazed, shadows
-        as hexagons in road coordinates. A handful of objects is cheaper in
-        Python scalars than in a few dozen small numpy operations.
+        Cached until the camera enters a new road tile or the light changes. Shadows
+        are hexagons in road coordinates. A handful of objects is cheaper in Python
+        scalars than in a few dozen small numpy operations.
         """
         batch = self._scenery.window(seed, s_cam, s_cam + SCENERY_FAR)
+        light, sh = sun.light, sun.shift
         if self._win is not None and self._win_key is not None and self._win_key[0] is batch \
                 and self._win_key[1] == light:  # holding the batch keeps its identity unique
             return self._win
@@ -815,167 +968,165 @@ class Renderer:
             s, x, r = float(b.tree_s[i]), float(b.tree_x[i]), float(b.tree_r[i])
             yc = float(b.tree_h[i]) + 0.8 * r  # [m] crown centre height
             rgb = b.tree_rgb[i].tolist()
-            trees.append((s, x, yc, r, lit_dx * r, 0.3 * r,
-                          tuple(min(c * k_crown, 255.0) for c in rgb), tuple(min(c * k_lit, 255.0) for c in rgb),
-                          tuple(x + sh[0] * yc + r * c for c in _HEX_COS.tolist()),
-                          tuple(s + sh[1] * yc + r * c for c in _HEX_SIN.tolist()), r - sh[1] * yc))
+            trees.append(_Tree(
+                s=s, x=x, crown_y=yc, radius=r, lit_dx=lit_dx * r, lit_dy=0.3 * r,
+                crown_rgb=tuple(min(c * k_crown, 255.0) for c in rgb),
+                lit_rgb=tuple(min(c * k_lit, 255.0) for c in rgb),
+                shadow_x=tuple(x + sh[0] * yc + r * c for c in _HEX_COS.tolist()),
+                shadow_s=tuple(s + sh[1] * yc + r * c for c in _HEX_SIN.tolist()),
+                shadow_reach=r - sh[1] * yc))
         blds = []
         o = np.argsort(-b.bld_s, kind="stable")
         x_out = b.bld_x[o] + np.where(b.bld_x[o] > 0, b.bld_depth[o], -b.bld_depth[o])
         hexes = _swept_many(np.minimum(b.bld_x[o], x_out), np.maximum(b.bld_x[o], x_out), b.bld_s[o],
-                            b.bld_s[o] + b.bld_len[o], sh[0] * b.bld_h[o], sh[1] * b.bld_h[o], pattern)
+                            b.bld_s[o] + b.bld_len[o], sh[0] * b.bld_h[o], sh[1] * b.bld_h[o], sun.pattern)
         for j, i in enumerate(o.tolist()):
             xb, hb = float(b.bld_x[i]), float(b.bld_h[i])
             side = 1.0 if xb > 0 else -1.0
             rgb = b.bld_rgb[i]
             hx = hexes[j]
-            blds.append((float(b.bld_s[i]), xb, xb + side * float(b.bld_depth[i]), float(b.bld_len[i]), hb,
-                         min(int(hb // 3.5), _WINDOW_FLOORS), _shade(rgb, -light[2], 0.0),
-                         _shade(rgb, -side * light[0], 0.0), tuple(hx[:, 0].tolist()),
-                         tuple(hx[:, 2].tolist()), float(hx[:, 2].min() - b.bld_s[i])))
-        self._win = (trees, [-t[0] for t in trees], blds)
+            blds.append(_Building(
+                s=float(b.bld_s[i]), x_wall=xb, x_far=xb + side * float(b.bld_depth[i]),
+                length=float(b.bld_len[i]), height=hb, floors=min(int(hb // 3.5), _WINDOW_FLOORS),
+                near_rgb=_shade(rgb, -light[2], 0.0), wall_rgb=_shade(rgb, -side * light[0], 0.0),
+                shadow_x=tuple(hx[:, 0].tolist()), shadow_s=tuple(hx[:, 2].tolist()),
+                shadow_reach=float(b.bld_s[i] - hx[:, 2].min())))
+        self._win = _SceneryWindow(trees, [-t.s for t in trees], blds)
         self._win_key = (batch, light)
         return self._win
 
-    def _scenery_view(self, seed: int, s_cam: float, light: tuple, sh: tuple, pattern: tuple) -> tuple:
-        """Visible buildings and trees (far to near) and their shadow hexagons, fixed point.
+    def _scenery_view(self, seed: int, s_cam: float, sun: _Sun) -> _SceneryView:
+        """Visible buildings and trees (far to near) and their shadows, in fixed point.
 
-        Returns ``(buildings, trees, hexes, extra)``: draw lists, the shadow hexagons
-        ``(N, 6, 2)`` and near-clipped shadow polygons of other sizes.
+        Faces and trunks are collected as world quads and projected and shrunk (0.5 px
+        per axis, for ``LINE_8``) in one batch, as are the shadow hexagons.
         """
-        trees, neg_s, blds = self._scenery_window(seed, s_cam, light, sh, pattern)
+        win = self._scenery_window(seed, s_cam, sun)
+        quads: list[tuple] = []  # 4 points (X, Y, Z) [m] each
+        ground: list[list[tuple[float, float, float]]] = []  # shadow hexagons, 6 points each
+        clipped: list[np.ndarray] = []
+        blds = self._building_draws(win.buildings, s_cam, quads, ground, clipped)
+        trees = self._tree_draws(win, s_cam, quads, ground)
+        qa = _fix(_shrink(self._proj(np.array(quads, np.float64).reshape(-1, 4, 3)), 0.5))
+        hexa = _fix(self._proj(np.array(ground, np.float64).reshape(-1, 6, 3)))
+        return _SceneryView(qa, blds, trees, hexa, clipped)
+
+    def _building_draws(self, blds: list[_Building], s_cam: float, quads: list, ground: list,
+                        clipped: list[np.ndarray]) -> list[_BuildingDraw]:
+        """Buildings in reach: their quads into ``quads``, their shadows into ``ground``
+        (or, clipped at the camera and in fixed point, into ``clipped``)."""
+        zmin = self._z_ground_min
+        width = self.config.width
+        proj = self._project
+        out = []
+        for b in blds:
+            zb = b.s - s_cam  # [m] camera to the near face
+            if zb >= SCENERY_FAR or zb + b.length <= 4.0:
+                continue
+            z0 = zb if zb > zmin else zmin
+            z1 = zb + b.length
+            # out of the picture (beside the camera): its shadow may still show
+            ua, ub = proj(b.x_wall, 0.0, z1)[0], proj(b.x_wall, b.height, z1)[0]
+            if (min(ua, ub) <= width + 1.0) if b.x_wall > 0 else (max(ua, ub) >= -2.0):
+                out.append(self._building_quads(b, z0, z1, zb >= zmin, quads))
+            if zb <= SHADOW_FAR:
+                pts = [(gx, 0.0, gs - s_cam) for gx, gs in zip(b.shadow_x, b.shadow_s, strict=True)]
+                if zb - b.shadow_reach < zmin:  # reaches beside the camera: clip
+                    p3 = _clip_near(np.array(pts), zmin)
+                    if len(p3) >= 3:
+                        clipped.append(_fix(self._proj(p3)))
+                else:
+                    ground.append(pts)
+        return out
+
+    @staticmethod
+    def _building_quads(b: _Building, z0: float, z1: float, near: bool, quads: list) -> _BuildingDraw:
+        """A building's face towards the camera (if ``near``), road-facing wall and window
+        bands between depths ``z0`` and ``z1`` [m], into ``quads``; its hazed colours."""
+        q0 = len(quads)
+        x, x1, hgt = b.x_wall, b.x_far, b.height
+        if near:
+            quads.append(((x, 0.0, z0), (x1, 0.0, z0), (x1, hgt, z0), (x, hgt, z0)))
+        quads.append(((x, 0.0, z0), (x, 0.0, z1), (x, hgt, z1), (x, hgt, z0)))
+        nwin = b.floors if z0 < 120.0 else 0  # window bands on the road-facing wall
+        for k in range(nwin):
+            ya, yb = 1.2 + 3.5 * k, 2.4 + 3.5 * k
+            quads.append(((x, ya, z0 + 1.0), (x, ya, z1 - 1.0), (x, yb, z1 - 1.0), (x, yb, z0 + 1.0)))
+        fog = 1.0 - math.exp(-z0 / sc.FOG_DISTANCE)
+        wall = _haze(b.wall_rgb, fog)
+        return _BuildingDraw(q0, near, nwin, _haze(b.near_rgb, fog), wall,
+                             (0.45 * wall[0], 0.45 * wall[1], 0.45 * wall[2]))
+
+    def _tree_draws(self, win: _SceneryWindow, s_cam: float, quads: list,
+                    ground: list) -> list[_TreeDraw]:
+        """Trees in reach: trunks into ``quads``, shadows clear of the camera into ``ground``."""
         zmin = self._z_ground_min
         f = self._f
         width = self.config.width
-        proj = self._proj_py
-
-        level, cx, cy, h = self._level, self._cx, self._cy, self._h
-
-        def quad(pts: tuple) -> None:  # 4 points, shrunk by 0.5 px per axis for LINE_8
-            if level:  # the projection inlined, in the same order as _proj
-                uv = [(x / z * f + cx, (h - y) / z * f + cy) for x, y, z in pts]
-            else:
-                uv = [proj(*p) for p in pts]
-            mu = 0.25 * (uv[0][0] + uv[1][0] + uv[2][0] + uv[3][0])
-            mv = 0.25 * (uv[0][1] + uv[1][1] + uv[2][1] + uv[3][1])
-            for u, v in uv:
-                du, dv = u - mu, v - mv
-                du = (du - 0.5 if du > 0.5 else 0.0) if du >= 0 else (du + 0.5 if du < -0.5 else -0.0)
-                dv = (dv - 0.5 if dv > 0.5 else 0.0) if dv >= 0 else (dv + 0.5 if dv < -0.5 else -0.0)
-                quads.append(round((mu + du) * ONE))
-                quads.append(round((mv + dv) * ONE))
-
-        quads: list[int] = []
-        hexes: list[int] = []
-        extra: list[np.ndarray] = []
-        hr, hg, hb_ = _HR, _HG, _HB
-        # buildings
-        bld_draw = []
-        for s, xb, x1, ln, hgt, floors, c_near, c_wall, shx, shs, shz_min in blds:
-            zb = s - s_cam
-            if zb >= SCENERY_FAR:
-                continue
-            if zb + ln <= 4.0:
-                continue
-            z0 = zb if zb > zmin else zmin
-            z1 = zb + ln
-            fog = 1.0 - math.exp(-z0 / sc.FOG_DISTANCE)
-            g = 1.0 - fog
-            # out of the picture (beside the camera): its shadow may still show
-            ua, ub = proj(xb, 0.0, z1)[0], proj(xb, hgt, z1)[0]
-            if (min(ua, ub) <= width + 1.0) if xb > 0 else (max(ua, ub) >= -2.0):
-                q0 = len(quads) >> 3
-                near = zb >= zmin
-                if near:
-                    quad(((xb, 0.0, z0), (x1, 0.0, z0), (x1, hgt, z0), (xb, hgt, z0)))
-                quad(((xb, 0.0, z0), (xb, 0.0, z1), (xb, hgt, z1), (xb, hgt, z0)))
-                nwin = floors if z0 < 120.0 else 0  # window bands on the road-facing wall
-                for k in range(nwin):
-                    ya, yb = 1.2 + 3.5 * k, 2.4 + 3.5 * k
-                    quad(((xb, ya, z0 + 1.0), (xb, ya, z1 - 1.0), (xb, yb, z1 - 1.0), (xb, yb, z0 + 1.0)))
-                wall = (c_wall[0] * g + hr * fog, c_wall[1] * g + hg * fog, c_wall[2] * g + hb_ * fog)
-                bld_draw.append((q0, near, nwin, wall,
-                                 (c_near[0] * g + hr * fog, c_near[1] * g + hg * fog, c_near[2] * g + hb_ * fog),
-                                 (0.45 * wall[0], 0.45 * wall[1], 0.45 * wall[2])))
-            if zb <= SHADOW_FAR:
-                if zb + shz_min < zmin:  # reaches beside the camera: clip
-                    g6 = np.array([(gx, 0.0, gs - s_cam) for gx, gs in zip(shx, shs, strict=True)])
-                    p3 = _clip_near(g6, zmin)
-                    if len(p3) >= 3:
-                        extra.append(_fix(self._proj(p3)))
-                else:
-                    for gx, gs in zip(shx, shs, strict=True):
-                        u, v = proj(gx, 0.0, gs - s_cam)
-                        hexes.append(round(u * ONE))
-                        hexes.append(round(v * ONE))
-        # trees
-        i0 = bisect.bisect_right(neg_s, -(s_cam + SCENERY_FAR))
-        i1 = bisect.bisect_left(neg_s, -(s_cam + 4.0))
-        tree_draw = []
-        for s, x, yc, r, ldx, ldy, c_crown, c_lit, shx, shs, reach in trees[i0:i1]:
-            z = s - s_cam
-            fog = 1.0 - math.exp(-z / sc.FOG_DISTANCE)
-            g = 1.0 - fog
-            rad = int(max(f * r / z - 0.5, 0.0) * ONE)
-            u, v = proj(x, yc, z)
+        proj = self._project
+        i0 = bisect.bisect_right(win.neg_s, -(s_cam + SCENERY_FAR))
+        i1 = bisect.bisect_left(win.neg_s, -(s_cam + 4.0))
+        out = []
+        for t in win.trees[i0:i1]:
+            z = t.s - s_cam  # [m] camera to the trunk
+            rad = int(max(f * t.radius / z - 0.5, 0.0) * ONE)
+            u, v = proj(t.x, t.crown_y, z)
             if -2 * ONE <= u * ONE + rad and u * ONE - rad <= (width + 1) * ONE:  # in the picture
-                crown = ((round(u * ONE), round(v * ONE)), rad,
-                         (c_crown[0] * g + hr * fog, c_crown[1] * g + hg * fog, c_crown[2] * g + hb_ * fog))
-                trunk: tuple | None = None
-                lit: tuple | None = None
-                if rad > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
-                    qi = len(quads) >> 3
-                    quad(((x - 0.18, 0.0, z), (x + 0.18, 0.0, z), (x + 0.18, yc, z), (x - 0.18, yc, z)))
-                    trunk = (qi, (_TRUNK_RGB[0] * g + hr * fog, _TRUNK_RGB[1] * g + hg * fog,
-                                  _TRUNK_RGB[2] * g + hb_ * fog))
-                if rad > 5 * ONE:
-                    u, v = proj(x + ldx, yc + ldy, z)
-                    lit = ((round(u * ONE), round(v * ONE)), int(0.6 * rad),
-                           (c_lit[0] * g + hr * fog, c_lit[1] * g + hg * fog, c_lit[2] * g + hb_ * fog))
-                tree_draw.append((trunk, crown, lit))
-            if z < SHADOW_FAR and z - reach > zmin:  # shadow clear of the camera
-                for gx, gs in zip(shx, shs, strict=True):
-                    u, v = proj(gx, 0.0, gs - s_cam)
-                    hexes.append(round(u * ONE))
-                    hexes.append(round(v * ONE))
-        qa = np.array(quads, np.int32).reshape(-1, 4, 2)
-        hexa = np.array(hexes, np.int32).reshape(-1, 6, 2)
-        return (qa, bld_draw) if bld_draw else None, (qa, tree_draw) if tree_draw else None, hexa, extra
+                out.append(self._tree_parts(t, z, (round(u * ONE), round(v * ONE)), rad, quads))
+            if z < SHADOW_FAR and z - t.shadow_reach > zmin:  # shadow clear of the camera
+                ground.append([(gx, 0.0, gs - s_cam) for gx, gs in zip(t.shadow_x, t.shadow_s, strict=True)])
+        return out
+
+    def _tree_parts(self, t: _Tree, z: float, center: tuple[int, int], rad: int,
+                    quads: list) -> _TreeDraw:
+        """A tree ``z`` [m] ahead whose crown is a disc at ``center`` of radius ``rad`` (fixed point)."""
+        fog = 1.0 - math.exp(-z / sc.FOG_DISTANCE)
+        trunk = trunk_rgb = lit = None
+        if rad > 3 * ONE:  # the trunk of a distant tree is hidden under its crown
+            trunk = len(quads)
+            x, yc = t.x, t.crown_y
+            quads.append(((x - 0.18, 0.0, z), (x + 0.18, 0.0, z), (x + 0.18, yc, z), (x - 0.18, yc, z)))
+            trunk_rgb = _haze(_TRUNK_RGB, fog)
+        if rad > 5 * ONE:
+            u, v = self._project(t.x + t.lit_dx, t.crown_y + t.lit_dy, z)
+            lit = _Disc((round(u * ONE), round(v * ONE)), int(0.6 * rad), _haze(t.lit_rgb, fog))
+        return _TreeDraw(trunk, trunk_rgb, _Disc(center, rad, _haze(t.crown_rgb, fog)), lit)
 
     # ------------------------------------------------------------------- objects
     @staticmethod
-    def _draw_buildings(img: np.ndarray, geo: tuple, light: tuple) -> None:
+    def _draw_buildings(img: np.ndarray, view: _SceneryView) -> None:
         """Buildings far to near: the face towards the camera, the road-facing wall, windows."""
-        qa, draw = geo
+        qa = view.quads
         fill = cv2.fillConvexPoly
-        for q, near, nwin, wall, c_near, win in draw:
-            if near:
-                fill(img, qa[q], c_near, L8, SHIFT)
+        for d in view.buildings:
+            q = d.quad
+            if d.near:
+                fill(img, qa[q], d.near_rgb, L8, SHIFT)
                 q += 1
-            fill(img, qa[q], wall, L8, SHIFT)
-            if nwin:
-                cv2.fillPoly(img, list(qa[q + 1:q + 1 + nwin]), win, L8, SHIFT)
+            fill(img, qa[q], d.wall_rgb, L8, SHIFT)
+            if d.windows:
+                cv2.fillPoly(img, list(qa[q + 1:q + 1 + d.windows]), d.window_rgb, L8, SHIFT)
 
     @staticmethod
-    def _draw_trees(img: np.ndarray, geo: tuple) -> None:
+    def _draw_trees(img: np.ndarray, view: _SceneryView) -> None:
         """Trees far to near: trunk (when it shows below the crown), crown, sunlit spot."""
-        qa, draw = geo
+        qa = view.quads
         circle, fill = cv2.circle, cv2.fillConvexPoly
-        for trunk, crown, lit in draw:
-            if trunk is not None:
-                fill(img, qa[trunk[0]], trunk[1], L8, SHIFT)
-            circle(img, crown[0], crown[1], crown[2], -1, L8, SHIFT)
-            if lit is not None:
-                circle(img, lit[0], lit[1], lit[2], -1, L8, SHIFT)
+        for t in view.trees:
+            if t.trunk is not None:
+                fill(img, qa[t.trunk], t.trunk_rgb, L8, SHIFT)
+            circle(img, t.crown.center, t.crown.radius, t.crown.rgb, -1, L8, SHIFT)
+            if t.lit is not None:
+                circle(img, t.lit.center, t.lit.radius, t.lit.rgb, -1, L8, SHIFT)
 
-    def _car_faces(self, item: tuple, light: tuple, lod: str) -> tuple[np.ndarray, list]:
+    def _car_faces(self, item: _CarItem, light: tuple, lod: str) -> tuple[np.ndarray, list]:
         """A car's visible faces: their corners ``(F, 4, 3)`` in the car's frame (scaled to
         its size) and their colours, in drawing order.
 
         Cached per template, visibility case, size, body colour and light: the world
         sends the same few cars every step.
         """
-        z_near, x_c, oncoming, car, _ = item
+        x_c, oncoming, car = item.x, item.oncoming, item.car
         if not self.car_detail:
             kind = "plain"
         elif oncoming:
@@ -995,14 +1146,13 @@ class Renderer:
         h = self._h
         cols: dict[str, tuple[float, float, float]] = {}
         out = []
-        for j, (role, cond) in enumerate(tpl.faces):
-            if cond is not None:
-                what, v = cond
-                if what == "left" and not x_c + v * sx > 0:
+        for j, (role, when) in enumerate(tpl.faces):
+            if when is not None:
+                if when.side == "left" and not x_c + when.at * sx > 0:
                     continue
-                if what == "right" and not x_c + v * sx < 0:
+                if when.side == "right" and not x_c + when.at * sx < 0:
                     continue
-                if what == "top" and not v * sy < h:
+                if when.side == "top" and not when.at * sy < h:
                     continue
             col = cols.get(role)
             if col is None:
@@ -1015,7 +1165,7 @@ class Renderer:
                 elif role == "right":
                     col = _shade(body, light[0], 0.0)
                 elif role in _LAMPS:
-                    col = _emit(_LAMPS[role], 0.0)
+                    col = _haze(_LAMPS[role], 0.0)
                 else:
                     base, lam = _FIXED[role]
                     if role == "window" and oncoming:
@@ -1031,21 +1181,20 @@ class Renderer:
         self._face_cache[key] = faces
         return faces
 
-    def _car_geometry(self, cars: list, light: tuple) -> tuple[np.ndarray, list]:
+    def _car_geometry(self, cars: list[_CarItem], light: tuple) -> tuple[np.ndarray, list]:
         """The visible faces of all cars in fixed point ``(F, 4, 2)``, in one projection,
         and their colours, in drawing order (cars far to near)."""
         parts, offs, counts = [], [], []
         cols: list = []
         for item in cars:
-            z_near, x_c, _, car, is_lead = item
             lod = ""
-            if not is_lead:
-                w_px = self._f * car.width / z_near
+            if not item.is_lead:
+                w_px = self._f * item.car.width / item.z_near
                 lod = "_tiny" if w_px < TINY_WIDTH else ("_lod" if w_px < LOD_WIDTH else "")
             quads, faces = self._car_faces(item, light, lod)
             parts.append(quads)
             cols += faces
-            offs.append((x_c, 0.0, z_near))
+            offs.append((item.x, 0.0, item.z_near))
             counts.append(len(faces))
         p = np.concatenate(parts)
         p += np.repeat(np.array(offs), counts, axis=0)[:, None, :]
@@ -1056,15 +1205,6 @@ _HEX_COS = np.cos(np.linspace(0, 2 * np.pi, 7)[:-1])
 _HEX_SIN = np.sin(np.linspace(0, 2 * np.pi, 7)[:-1])
 _TRUNK_RGB = (95 * 0.62, 70 * 0.62, 45 * 0.62)
 _WINDOW_FLOORS = 3  # at most this many window bands per building
-# building points: near face (0-3), road-facing wall (4-7), window bands (4 per floor)
-_BLD_X1 = np.zeros(8 + 4 * _WINDOW_FLOORS, bool)  # at the far side (x1) rather than the wall
-_BLD_X1[1:3] = True
-_BLD_YH = np.zeros(8 + 4 * _WINDOW_FLOORS)  # at the roof
-_BLD_YH[[2, 3, 6, 7]] = 1.0
-_BLD_Y = np.concatenate([np.zeros(8)] + [np.array([1.2, 1.2, 2.4, 2.4]) + 3.5 * k for k in range(_WINDOW_FLOORS)])
-_BLD_FAR = np.zeros(8 + 4 * _WINDOW_FLOORS, bool)  # at the far end (z1)
-_BLD_FAR[[5, 6] + [9 + 4 * k for k in range(_WINDOW_FLOORS)] + [10 + 4 * k for k in range(_WINDOW_FLOORS)]] = True
-_BLD_DZ = np.concatenate([np.zeros(8)] + [np.array([1.0, -1.0, -1.0, 1.0])] * _WINDOW_FLOORS)
 # ground strips (X from, X to, colour): shoulders, lanes, median, then the solid lines
 _STRIPS = (
     (sc.ONCOMING_EDGE_OUT - sc.SHOULDER_OUTER, sc.ONCOMING_EDGE_OUT, sc.SHOULDER),
