@@ -5,9 +5,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
+import functools
 import importlib.metadata
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ from agent_client.controllers import CONTROLLERS, camera, make_controller
 from agent_client.controllers.hdm import NAME as HDM_NAME
 from agent_client.controllers.human_file import (
     PADS,
+    HumanFile,
     HumanFileHeader,
     HumanFileRecorder,
     RecordingController,
@@ -33,7 +35,7 @@ from agent_client.controllers.keyboard import (
     require_display,
     require_pygame,
 )
-from agent_client.drive import COLD_START_HELP, drive_episode
+from agent_client.drive import COLD_START_HELP, DriveSummary, drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import DEFAULT_ROAD, Road, local_server
 from agent_client.runlog import COLUMNS, file_sha256, write_card
@@ -153,6 +155,172 @@ def server_address(server: str | None, *server_args: str) -> Iterator[tuple[str,
         yield addr
 
 
+@dataclasses.dataclass(frozen=True)
+class DriveEpisode:
+    """The episode a ``vacc drive`` run asks the server for."""
+
+    scenario: str  # "ice" | "ev"
+    trajectory: str  # a name of TRAJECTORIES, or a CSV trace's path
+    seed: int
+    start: dict[str, float | None]  # set_speed, host_speed [m/s] and gap [m]; None: drawn
+    duration: float | None  # [s]; None: to the trajectory's end
+    cold_start: bool  # no camera pre-roll before the controller engages
+    trace: tuple[np.ndarray, np.ndarray] | None  # a CSV trace's (times [s], speeds [m/s])
+
+
+def spawned_road(server: str | None, traffic: int, sun_elevation: tuple[float, float]) -> Road:
+    """The road a spawned server is started with; a ``--server`` one keeps its own.
+
+    Raises:
+        click.UsageError: ``--traffic`` or ``--sun-elevation`` changed with ``--server``.
+    """
+    road = Road(traffic, sun_elevation)
+    if server is not None and road != DEFAULT_ROAD:
+        option = f"--traffic {traffic}" if traffic != TRAFFIC_PER_LANE else "--sun-elevation " + ",".join(map(str, sun_elevation))
+        raise click.UsageError(f"{option} sets a spawned server's road; start the --server one with vacc serve {option}")
+    return road
+
+
+def load_replay(human_file: str | None, *, scenario: str, trajectory: str, seed: int, start: dict[str, float | None]) -> HumanFile:
+    """The human-file ``--controller human-file`` replays, checked against the episode.
+
+    Raises:
+        click.UsageError: no ``--human-file``.
+        click.ClickException: the file is unreadable or was recorded on another episode.
+    """
+    if human_file is None:
+        raise click.UsageError("--controller human-file needs --human-file PATH")
+    try:
+        replay = read_human_file(human_file)
+        replay.check(scenario=scenario, trajectory=trajectory, seed=seed, **start)
+    except ClientError as exc:
+        raise click.ClickException(str(exc)) from None
+    return replay
+
+
+def controller_before_server(
+    controller: str, *, server: str | None, seed: int, checkpoint: str | None, replay: HumanFile | None, pad: str,
+) -> Any:
+    """The controller, built before a server is spawned; None for ``keyboard``, which is
+    built inside its window (:func:`open_keyboard`) once the session is open.
+
+    Raises:
+        click.ClickException: ``keyboard`` without pygame or a display.
+        click.UsageError: ``ddqn`` without ``--checkpoint``.
+        click.BadParameter: a checkpoint (or controller) that cannot be loaded.
+    """
+    if controller == "keyboard":
+        try:
+            require_pygame()  # fail before a server is spawned
+            require_display()
+        except ClientError as exc:
+            raise click.ClickException(str(exc)) from None
+        if server is not None:
+            click.echo("note: --server given: start it with 'vacc serve --realtime' to drive at wall-clock speed", err=True)
+        return None
+    if controller == "ddqn" and checkpoint is None:
+        raise click.UsageError("--controller ddqn needs --checkpoint PATH")
+    try:
+        return make_controller(controller, seed=seed, checkpoint=checkpoint, human_file=replay, pad=pad)
+    except ClientError as exc:
+        raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
+
+
+def spawn_args(road: Road, *, server_faults: str | None, realtime: bool, key_file: str | None) -> tuple[list[str], bytes | None]:
+    """A spawned server's arguments, and the shared key of ``key_file`` (None without one).
+
+    Raises:
+        click.BadParameter: an unreadable or malformed key file.
+    """
+    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + list(road.server_args())
+    key = None
+    if key_file is not None:
+        try:
+            key = load_key(key_file)
+        except KeyFileError as exc:
+            raise click.BadParameter(str(exc), param_hint="--key-file") from None
+        server_args += ["--key-file", key_file]
+    return server_args, key
+
+
+def open_keyboard(period: float, stack: contextlib.ExitStack, *, window_scale: int, joystick: int, joystick_map: JoystickMap) -> KeyboardController:
+    """The keyboard (and pedals) controller in a driving window that ``stack`` closes.
+
+    Args:
+        period: the session's control period [s].
+        joystick: SDL index of the pedals' device; -1: none.
+    """
+    window = DrivingWindow(scale=window_scale)
+    stack.callback(window.close)
+    return KeyboardController(period, window, joystick=None if joystick < 0 else joystick, joystick_map=joystick_map)
+
+
+def drive_logged(
+    episode: DriveEpisode, policy: Any, *, server: str | None, server_args: list[str], controller: str, replay: HumanFile | None,
+    keyboard: Callable[[float, contextlib.ExitStack], Any] | None, faults: FaultConfig | None, session_options: dict[str, Any],
+    checkpoint: str | None, human_file: str | None, server_faults: str | None, log_path: str, record_path: str | None,
+) -> tuple[dict[str, Any], DriveSummary]:
+    """Open the session, write the card, drive the episode into ``log_path``; the card (its
+    end still open) and the summary.
+
+    Args:
+        keyboard: builds the live controller from the control period, or None when
+            ``policy`` drives.
+        faults: faults injected on the client's sends.
+        session_options: the :class:`Session`'s other keywords (give_up, image_format, image_size, key).
+
+    Raises:
+        click.ClickException: the session failed (the card, once written, says so) or
+            another client error.
+    """
+    ep, start = episode, episode.start
+    card: dict[str, Any] | None = None
+    try:
+        with (
+            server_address(server, *server_args) as addr,
+            Session(addr, faults=faults, client_name=f"vacc-drive/{controller}", **session_options) as session,
+            contextlib.ExitStack() as stack,
+        ):
+            period = float(session.welcome["control_period"]) if session.welcome else 0.1
+            if replay is not None:
+                replay.check(scenario=ep.scenario, trajectory=ep.trajectory, seed=ep.seed, control_period=period, **start)
+            if keyboard is not None:
+                policy = keyboard(period, stack)
+            card = run_card(
+                episode={"scenario": ep.scenario, "trajectory": ep.trajectory, "seed": ep.seed, **start, "duration": ep.duration,
+                         "preroll": 0 if ep.cold_start else getattr(policy, "history_steps", 0)},
+                welcome=session.welcome, addr=addr, spawned=server is None, controller=controller, checkpoint=checkpoint,
+                human_file=human_file, faults=faults, server_faults=server_faults, columns=getattr(policy, "log_columns", ()),
+            )  # fmt: skip
+            write_card(log_path, card)  # before the first row: an interrupted run keeps its card
+            if record_path is not None:
+                header = HumanFileHeader(ep.scenario, trajectory_label(ep.trajectory), ep.seed, period, duration=ep.duration, extra={**start_extra(**start), **road_extra(session.welcome)})
+                recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
+                policy = RecordingController(policy, recorder)
+            summary = drive_episode(
+                session, policy, scenario=ep.scenario, seed=ep.seed, trajectory=ep.trajectory, trace=ep.trace,
+                duration=ep.duration, log=Path(log_path), **start, preroll=0 if ep.cold_start else None,
+            )  # fmt: skip
+    except (FatalSessionError, SessionError) as exc:
+        if card is not None:
+            write_card(log_path, {**card, "end": {"error": str(exc)}})
+        raise click.ClickException(f"{exc} (log so far: {log_path})") from None
+    except ClientError as exc:
+        raise click.ClickException(str(exc)) from None
+    assert card is not None  # written before the episode
+    return card, summary
+
+
+def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: str, log_path: str, record_path: str | None) -> None:
+    """Print what was driven, where it was written, and the run's summary lines."""
+    if record_path is not None:
+        click.echo(f"human-file -> {record_path}")
+    trajectory = episode.trajectory if episode.trace is None else Path(episode.trajectory).name
+    click.echo(f"{HDM_NAME if controller == 'hdm' else controller} on {episode.scenario}/{trajectory} (seed {episode.seed}) -> {log_path}")
+    for line in summary.lines():
+        click.echo("  " + line)
+
+
 @click.command("drive")
 @click.option("--controller", required=True, type=click.Choice(CONTROLLERS), help="Who drives.")
 @click.option("--server", default=None, metavar="HOST:PORT", help="Use this server; default: spawn a local one.")
@@ -218,90 +386,26 @@ def drive(
     Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
-    road = Road(traffic, sun_elevation)
-    if server is not None and road != DEFAULT_ROAD:
-        option = f"--traffic {traffic}" if traffic != TRAFFIC_PER_LANE else "--sun-elevation " + ",".join(map(str, sun_elevation))
-        raise click.UsageError(f"{option} sets a spawned server's road; start the --server one with vacc serve {option}")
+    road = spawned_road(server, traffic, sun_elevation)
     trace = load_lead(trajectory)
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
-    policy: Any = None
     replay = None
     if controller == "human-file":
-        if human_file is None:
-            raise click.UsageError("--controller human-file needs --human-file PATH")
-        try:
-            replay = read_human_file(human_file)
-            replay.check(scenario=scenario, trajectory=trajectory, seed=seed, **start)
-        except ClientError as exc:
-            raise click.ClickException(str(exc)) from None
+        replay = load_replay(human_file, scenario=scenario, trajectory=trajectory, seed=seed, start=start)
         duration = replay.header.duration if duration is None else duration
-    if controller == "keyboard":  # built inside its window, below
-        try:
-            require_pygame()  # fail before a server is spawned
-            require_display()
-        except ClientError as exc:
-            raise click.ClickException(str(exc)) from None
-        if server is not None:
-            click.echo("note: --server given: start it with 'vacc serve --realtime' to drive at wall-clock speed", err=True)
-    else:
-        if controller == "ddqn" and checkpoint is None:
-            raise click.UsageError("--controller ddqn needs --checkpoint PATH")
-        try:
-            policy = make_controller(controller, seed=seed, checkpoint=checkpoint, human_file=replay, pad=pad)
-        except ClientError as exc:
-            raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
+    policy = controller_before_server(controller, server=server, seed=seed, checkpoint=checkpoint, replay=replay, pad=pad)
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
-    server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + list(road.server_args())
-    key = None
-    if key_file is not None:
-        try:
-            key = load_key(key_file)
-        except KeyFileError as exc:
-            raise click.BadParameter(str(exc), param_hint="--key-file") from None
-        server_args += ["--key-file", key_file]
+    server_args, key = spawn_args(road, server_faults=server_faults, realtime=realtime, key_file=key_file)
     image_format, image_size = ("rgb", LIVE_IMAGE) if live else camera(policy)  # a DDQN checkpoint's zoom decides
-    card: dict[str, Any] | None = None
-    try:
-        with (
-            server_address(server, *server_args) as addr,
-            Session(addr, give_up=give_up, faults=faults, client_name=f"vacc-drive/{controller}", image_format=image_format, image_size=image_size, key=key) as session,
-            contextlib.ExitStack() as stack,
-        ):
-            period = float(session.welcome["control_period"]) if session.welcome else 0.1
-            if replay is not None:
-                replay.check(scenario=scenario, trajectory=trajectory, seed=seed, control_period=period, **start)
-            if live:
-                window = DrivingWindow(scale=window_scale)
-                stack.callback(window.close)
-                policy = KeyboardController(period, window, joystick=None if joystick < 0 else joystick, joystick_map=joystick_map)
-            card = run_card(
-                episode={"scenario": scenario, "trajectory": trajectory, "seed": seed, **start, "duration": duration,
-                         "preroll": 0 if cold_start else getattr(policy, "history_steps", 0)},
-                welcome=session.welcome, addr=addr, spawned=server is None, controller=controller, checkpoint=checkpoint,
-                human_file=human_file, faults=faults, server_faults=server_faults, columns=getattr(policy, "log_columns", ()),
-            )  # fmt: skip
-            write_card(log_path, card)  # before the first row: an interrupted run keeps its card
-            if record_path is not None:
-                header = HumanFileHeader(scenario, trajectory_label(trajectory), seed, period, duration=duration, extra={**start_extra(**start), **road_extra(session.welcome)})
-                recorder = stack.enter_context(HumanFileRecorder(record_path, header, (f"controller={controller}",)))
-                policy = RecordingController(policy, recorder)
-            summary = drive_episode(
-                session, policy, scenario=scenario, seed=seed, trajectory=trajectory, trace=trace,
-                duration=duration, log=Path(log_path), host_speed=host_speed, gap=gap, set_speed=set_speed,
-                preroll=0 if cold_start else None,
-            )  # fmt: skip
-    except (FatalSessionError, SessionError) as exc:
-        if card is not None:
-            write_card(log_path, {**card, "end": {"error": str(exc)}})
-        raise click.ClickException(f"{exc} (log so far: {log_path})") from None
-    except ClientError as exc:
-        raise click.ClickException(str(exc)) from None
+    episode = DriveEpisode(scenario, trajectory, seed, start, duration, cold_start, trace)
+    keyboard = functools.partial(open_keyboard, window_scale=window_scale, joystick=joystick, joystick_map=joystick_map) if live else None
+    card, summary = drive_logged(
+        episode, policy, server=server, server_args=server_args, controller=controller, replay=replay, keyboard=keyboard,
+        faults=faults, session_options={"give_up": give_up, "image_format": image_format, "image_size": image_size, "key": key},
+        checkpoint=checkpoint, human_file=human_file, server_faults=server_faults, log_path=log_path, record_path=record_path,
+    )  # fmt: skip
     write_card(log_path, {**card, "end": dataclasses.asdict(summary)})
     if not quiet:
-        if record_path is not None:
-            click.echo(f"human-file -> {record_path}")
-        click.echo(f"{HDM_NAME if controller == 'hdm' else controller} on {scenario}/{trajectory if trace is None else Path(trajectory).name} (seed {seed}) -> {log_path}")
-        for line in summary.lines():
-            click.echo("  " + line)
+        echo_summary(summary, episode, controller=controller, log_path=log_path, record_path=record_path)
     sys.stdout.flush()

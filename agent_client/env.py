@@ -21,7 +21,13 @@ from agent_client import preprocess as pre
 from agent_client.actions import ACTION_TYPES, make_action_type
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
-from agent_client.rewards import CONTROL_PERIOD, ECO_WEIGHTS, REWARDS, make_reward
+from agent_client.rewards import (
+    CONTROL_PERIOD,
+    ECO_WEIGHTS,
+    REWARDS,
+    make_reward,
+    make_reward_terms,
+)
 from agent_client.session import GIVE_UP, Session
 from agent_client.stacker import MAX_SPEED, FrameStacker
 from protocol.auth import load_key
@@ -75,6 +81,24 @@ class VisionACCEnv(gym.Env):
     ``eco_weights`` (beyond the paper). ``crash_reward``: a collision step's reward
     instead of the reward's own value at contact (None: unchanged; see
     :attr:`agent_client.rl.config.Config.crash_reward`).
+    Each step's ``info["reward_terms"]`` holds the reward by term (below).
+
+    ## Info
+    ``reset`` and ``step`` both return, from the server's observation: ``t`` [s],
+    ``frame``, ``gap`` [m], ``v_host``, ``v_lead`` [m/s], ``a_lead``, ``accel``
+    [m/s²] (over the last control period), ``force`` (the u applied), ``collision``,
+    ``reason`` ("", "collision", "gap" or "end") and ``set_speed`` [m/s]. ``reset``
+    adds ``seed`` (the episode seed drawn or given) and, with ``preroll``, ``preroll``.
+    ``step`` adds ``reward_terms``: a dict of the reward's terms by name, *weighted*
+    (each already times its weight and over the reward's normaliser), so that their
+    sum is the returned reward to float rounding (the reward itself is computed
+    whole, as ever): ``gap`` reward: ``gap``; ``force``: ``gap``, ``force``;
+    ``eco``: ``gap``, ``energy``, ``comfort``, ``closing`` (the last three signed as
+    paid: <= 0 but for an EV's regeneration). Every reward also has ``crash``: 0.0,
+    but on a collision step with ``crash_reward`` set, where it is ``crash_reward``
+    and the reward's own terms are 0.0 (the value replaced them). Like the gap, these
+    are privileged: logging and reward studies only
+    (:func:`agent_client.rewards.make_reward_terms`).
 
     ## Starting state
     Table 2 of the paper for the scenario (or the lead scenario's own ranges,
@@ -130,7 +154,8 @@ class VisionACCEnv(gym.Env):
     * v0: first version; lead scenarios, ``set_speed`` and the ``host_speed``/``gap``
       reset options added with protocol version 2; ``action="steps"``; colour
       ``rgb_array``, ``human`` rendering and ``max_episode_steps`` (no change to
-      observations, rewards or dynamics, so still v0); ``preroll`` (off by default).
+      observations, rewards or dynamics, so still v0); ``preroll`` (off by default);
+      ``info["reward_terms"]`` (the reward's value unchanged, so still v0).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": round(1.0 / CONTROL_PERIOD)}
@@ -184,6 +209,7 @@ class VisionACCEnv(gym.Env):
         self.scenario, self.trajectory = scenario, trajectory
         self.set_speed = set_speed
         self.reward_fn = make_reward(reward, scenario, eco_weights)
+        self.reward_terms_fn = make_reward_terms(reward, scenario, eco_weights)
         self.crash_reward = crash_reward
         self._a_prev = 0.0  # [m/s^2] the host's acceleration over the previous step
         self.frame_stack, self.stack_stride = frame_stack, stack_stride
@@ -286,11 +312,17 @@ class VisionACCEnv(gym.Env):
         """Apply the force ``u`` for one control step; the Gymnasium step's returns."""
         obs = self.session.step(u)
         a = float(obs["accel"])
-        reward = self.reward_fn(obs["gap"], u, v=float(obs["v_host"]), a=a, a_prev=self._a_prev, v_lead=float(obs["v_lead"]))
+        kw = {"v": float(obs["v_host"]), "a": a, "a_prev": self._a_prev, "v_lead": float(obs["v_lead"])}
+        reward = self.reward_fn(obs["gap"], u, **kw)
+        terms = self.reward_terms_fn(obs["gap"], u, **kw)
+        crash = 0.0
         if obs["collision"] and self.crash_reward is not None:
-            reward = self.crash_reward
+            reward = crash = self.crash_reward
+            terms = dict.fromkeys(terms, 0.0)  # the crash value replaces the reward's own
+        terms["crash"] = crash
         self._a_prev = a
         observation, info = self._observe(obs), self._info(obs)
+        info["reward_terms"] = terms
         self._after(info)
         return observation, reward, bool(obs["terminated"]), bool(obs["truncated"]), info
 

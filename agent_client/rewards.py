@@ -29,12 +29,19 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
 Every reward takes (gap, u) and, as keywords, the host's speed ``v`` [m/s], its
 acceleration ``a`` [m/s^2] over the step, the acceleration ``a_prev`` of the step
 before and the lead's speed ``v_lead`` [m/s]; the paper's two ignore them.
+
+Each reward has a twin in :data:`REWARD_TERMS` (:func:`make_reward_terms`) that takes
+the same arguments and returns its terms by name, weighted and normalised: their sum is
+the reward, to float rounding (the reward itself is computed as it always was, so its
+value does not move by a bit). ``gap``: {gap}; ``force``: {gap, force}; ``eco``:
+{gap, energy, comfort, closing}, the last three <= 0 (ICE) or the energy > 0 while an EV
+regenerates.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -46,8 +53,9 @@ from protocol.constants import CONTROL_PERIOD, DESIRED_GAP
 
 __all__ = [
     "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
-    "closing_term", "check_eco_weights",
+    "closing_term", "check_eco_weights", "EcoTerms", "eco_terms",
     "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
+    "gap_reward_terms", "force_reward_terms", "eco_reward_terms", "make_reward_terms", "REWARD_TERMS",
 ]  # fmt: skip
 
 GAP_POINTS = ((0.0, -10.0), (30.0, 0.0), (55.0, 10.0), (80.0, 0.0), (300.0, -5.0))  # ([m], raw reward)
@@ -122,6 +130,33 @@ def check_eco_weights(weights: tuple[float, ...]) -> str | None:
     return None
 
 
+class EcoTerms(NamedTuple):
+    """The eco reward's four terms at one step, unweighted (see :func:`eco_terms`)."""
+
+    gap: float  # raw Table 1 gap term around eco_desired_gap(v), in [-10, 10]
+    energy: float  # energy_term, in [-1, 1]
+    comfort: float  # comfort_term, in [0, 1]
+    closing: float  # closing_term, in [0, 1]; 0 without the lead's speed
+
+
+def eco_terms(
+    gap: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
+) -> EcoTerms:
+    """The eco reward's terms, unweighted and unsigned, for a gap [m], the host's speed
+    ``v`` [m/s] and accelerations ``a``, ``a_prev`` [m/s^2], the lead's speed ``v_lead``
+    [m/s] (None: no closing term) and the host of ``scenario`` ("ice" or "ev").
+
+    The one place they are computed: the eco reward, its named terms and
+    ``scripts/reward_ablation.py`` (which scores run logs where no env runs) all read them.
+    """
+    return EcoTerms(
+        gap=gap_term(gap, eco_desired_gap(v)),
+        energy=energy_term(v, a, scenario),
+        comfort=comfort_term(a, a_prev),
+        closing=0.0 if v_lead is None else closing_term(v, v_lead),
+    )
+
+
 def gap_reward(gap: float, u: float, **_: Any) -> float:
     """Gap-based DDQN reward in [-1, 1]; ignores the force."""
     return gap_term(gap) / 10.0
@@ -139,15 +174,56 @@ def eco_reward(
     """Eco reward in [-1, 1]: gap term, minus energy, jerk and closing speed (see the module
     docstring). Without ``v_lead`` the closing term is 0."""
     w_gap, w_energy, w_comfort, w_closing = weights
-    closing = 0.0 if v_lead is None else closing_term(v, v_lead)
-    total = (
-        w_gap * gap_term(gap, eco_desired_gap(v)) / 10.0 - w_energy * energy_term(v, a, scenario)
-        - w_comfort * comfort_term(a, a_prev) - w_closing * closing
-    )  # fmt: skip
+    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario)
+    # This expression, in this order, is the reward trained models were paid: keep it bit for bit.
+    total = w_gap * t.gap / 10.0 - w_energy * t.energy - w_comfort * t.comfort - w_closing * t.closing
     return total / sum(weights)
 
 
+def gap_reward_terms(gap: float, u: float, **_: Any) -> dict[str, float]:
+    """:func:`gap_reward` by term, weighted: {"gap"}."""
+    return {"gap": gap_term(gap) / 10.0}
+
+
+def force_reward_terms(gap: float, u: float, **_: Any) -> dict[str, float]:
+    """:func:`force_reward` by term, weighted: {"gap", "force"}; their sum is the reward."""
+    return {"gap": gap_term(gap) / 20.0, "force": force_term(u) / 20.0}
+
+
+def eco_reward_terms(
+    gap: float, u: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
+    weights: tuple[float, ...] = ECO_WEIGHTS, **_: Any,
+) -> dict[str, float]:
+    """:func:`eco_reward` by term (:data:`ECO_WEIGHT_NAMES`), each signed, weighted and
+    over the weights' sum; their sum is the reward."""
+    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario)
+    signed = (t.gap / 10.0, -t.energy, -t.comfort, -t.closing)
+    total = sum(weights)
+    return {name: w * x / total for name, w, x in zip(ECO_WEIGHT_NAMES, weights, signed, strict=True)}
+
+
 REWARDS: dict[str, Callable[..., float]] = {"gap": gap_reward, "force": force_reward, "eco": eco_reward}
+REWARD_TERMS: dict[str, Callable[..., dict[str, float]]] = {
+    "gap": gap_reward_terms, "force": force_reward_terms, "eco": eco_reward_terms,
+}  # fmt: skip
+assert REWARD_TERMS.keys() == REWARDS.keys()
+
+
+def _bind(table: dict[str, Callable[..., Any]], name: str, scenario: str, eco_weights: tuple[float, ...]) -> Callable[..., Any]:
+    """``table[name]``, the eco entry bound to ``scenario`` and checked ``eco_weights``.
+
+    Raises:
+        ValueError: an unknown name, or eco weights :func:`check_eco_weights` refuses.
+    """
+    if name not in table:
+        raise ValueError(f"reward {name!r} is not one of {sorted(table)}")
+    fn = table[name]
+    if name != "eco":
+        return fn
+    weights = tuple(float(w) for w in eco_weights)
+    if (why := check_eco_weights(weights)) is not None:
+        raise ValueError(f"eco weights: {why}")
+    return lambda gap, u, **kw: fn(gap, u, scenario=scenario, weights=weights, **kw)
 
 
 def make_reward(name: str, scenario: str, eco_weights: tuple[float, ...] = ECO_WEIGHTS) -> Callable[..., float]:
@@ -155,14 +231,15 @@ def make_reward(name: str, scenario: str, eco_weights: tuple[float, ...] = ECO_W
     reward weighted by ``eco_weights`` (gap, energy, comfort, closing).
 
     Raises:
-        ValueError: an unknown name.
+        ValueError: an unknown name, or bad eco weights.
     """
-    if name not in REWARDS:
-        raise ValueError(f"reward {name!r} is not one of {sorted(REWARDS)}")
-    fn = REWARDS[name]
-    if name != "eco":
-        return fn
-    weights = tuple(float(w) for w in eco_weights)
-    if (why := check_eco_weights(weights)) is not None:
-        raise ValueError(f"eco weights: {why}")
-    return lambda gap, u, **kw: fn(gap, u, scenario=scenario, weights=weights, **kw)
+    return _bind(REWARDS, name, scenario, eco_weights)
+
+
+def make_reward_terms(name: str, scenario: str, eco_weights: tuple[float, ...] = ECO_WEIGHTS) -> Callable[..., dict[str, float]]:
+    """The twin of :func:`make_reward`: the same arguments, the reward's weighted terms by name.
+
+    Raises:
+        ValueError: an unknown name, or bad eco weights.
+    """
+    return _bind(REWARD_TERMS, name, scenario, eco_weights)

@@ -5,7 +5,10 @@
 
 The eco reward is linear in its four terms (gap, energy, comfort, closing: rewards.py), so
 each run's mean terms are computed once from its log and every weighting is a weighted sum
-over the weights' total, the reward the trainer would have paid per step. Prints, per
+over the weights' total, the reward the trainer would have paid per step. The logs come from
+``vacc drive``/``vacc evaluate``, where no env runs and no reward is paid, so the terms are
+computed from each row by :func:`agent_client.rewards.eco_terms`: the one function the eco
+reward and the env's ``info["reward_terms"]`` are built from. Prints, per
 weighting, the mean reward per step of each method over its logs and the methods in order.
 A reward-design check, not a training run: it says what a policy that maximised each
 weighting would be pushed toward, among behaviours that exist.
@@ -20,14 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agent_client.rewards import (
-    ECO_WEIGHTS,
-    closing_term,
-    comfort_term,
-    eco_desired_gap,
-    energy_term,
-    gap_term,
-)
+from agent_client.rewards import ECO_WEIGHTS, eco_terms
 
 WEIGHTINGS = {
     "shipped (1, 0.5, 0.25, 0.5)": ECO_WEIGHTS,
@@ -47,8 +43,9 @@ def mean_terms(log: Path, scenario: str) -> np.ndarray:
     terms = []
     a_prev = 0.0
     for r in rows[1:]:  # the reward of a step is paid on the row it produced
-        v, a, gap = float(r["v_host"]), float(r["accel"]), float(r["gap"])
-        terms.append((gap_term(gap, eco_desired_gap(v)) / 10.0, -energy_term(v, a, scenario), -comfort_term(a, a_prev), -closing_term(v, float(r["v_lead"]))))
+        a = float(r["accel"])
+        t = eco_terms(float(r["gap"]), v=float(r["v_host"]), a=a, a_prev=a_prev, v_lead=float(r["v_lead"]), scenario=scenario)
+        terms.append((t.gap / 10.0, -t.energy, -t.comfort, -t.closing))  # signed as the reward pays them
         a_prev = a
     return np.mean(terms, axis=0)
 

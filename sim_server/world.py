@@ -171,39 +171,14 @@ class World:
             raise InitialConditionError(str(exc)) from None
         v_set = DEFAULT_SET_SPEED if set_speed is None else float(set_speed)
         rng = np.random.default_rng([self.salt, seed & SEED_MASK])
-        if trajectory in LEAD_SCENARIOS:
-            episode = lead_scenarios.build(trajectory, rng, cfg.physics_dt)
-            self.v_lead_profile = episode.v_lead
-            v_host, gap0 = episode.v_host, episode.gap
-        else:
-            # Draw order kept as it always was: the paper's runs stay bit-identical.
-            self.v_lead_profile = traj.build(scenario, trajectory, rng, cfg.physics_dt, trace=trace)
-            lim = traj.LIMITS[scenario]
-            v_host = float(rng.uniform(*lim.v0_host))
-            gap0 = float(rng.uniform(*lim.gap0))
-            if trajectory == TRACE:
-                v_host = float(self.v_lead_profile[0])  # a trace starting at 0 starts the host standing
+        self.v_lead_profile, v_host, gap0 = self._draw_lead(scenario, trajectory, rng, trace)
         v_host = min(v_host if host_speed is None else float(host_speed), v_set)
         gap0 = gap0 if gap is None else float(gap)
         self.set_speed = v_set
-        steps = len(self.v_lead_profile) - 1
-        if duration is not None and duration < steps * cfg.physics_dt:  # longer: the whole trajectory (1e308 too)
-            steps = int(round(duration / cfg.physics_dt))
-        self.last_frame = steps // cfg.substeps
+        self.last_frame = self._last_frame(duration)
         self.scenario, self.seed = scenario, seed
-        if cfg.randomize_light and (trajectory == "random" or trajectory in LEAD_SCENARIOS):
-            self.light = (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(*cfg.sun_elevation)))
-        else:
-            self.light = (0.6, 0.8)
-
-        self.space = space = pymunk.Space()
-        space.on_collision(HOST, LEAD, begin=self._on_collision)
-        space.on_collision(HOST, TRAFFIC, begin=self._on_collision)
-        self.host = _car(space, HOST, 0.0, 0.0, pymunk.Body.DYNAMIC)
-        self.host.velocity = (v_host, 0.0)
-        self.lead = _car(space, LEAD, gap0 + CAR_LENGTH, 0.0, pymunk.Body.KINEMATIC)
-        self.lead.velocity = (float(self.v_lead_profile[0]), 0.0)
-        self._spawn_traffic(rng, float(np.mean(self.v_lead_profile)))
+        self.light = self._draw_light(trajectory, rng)
+        self._place_cars(rng, v_host, gap0)
         self._rng = rng
         self._collided = False
         self.odometer = 0.0  # [m] host distance travelled
@@ -213,6 +188,50 @@ class World:
             self._start_preroll(preroll)
         self.state = self._state(-preroll, 0.0, 0.0, 0.0, -(preroll * cfg.substeps) * cfg.physics_dt)
         return self.state
+
+    def _draw_lead(
+        self, scenario: str, trajectory: str, rng: np.random.Generator, trace: tuple[np.ndarray, np.ndarray] | None,
+    ) -> tuple[np.ndarray, float, float]:
+        """The lead's speed profile [m/s] per physics step, and the drawn initial host
+        speed [m/s] and gap [m], before any reset option overrides them."""
+        if trajectory in LEAD_SCENARIOS:
+            episode = lead_scenarios.build(trajectory, rng, self.config.physics_dt)
+            return episode.v_lead, episode.v_host, episode.gap
+        # Draw order kept as it always was: the paper's runs stay bit-identical.
+        profile = traj.build(scenario, trajectory, rng, self.config.physics_dt, trace=trace)
+        lim = traj.LIMITS[scenario]
+        v_host = float(rng.uniform(*lim.v0_host))
+        gap0 = float(rng.uniform(*lim.gap0))
+        if trajectory == TRACE:
+            v_host = float(profile[0])  # a trace starting at 0 starts the host standing
+        return profile, v_host, gap0
+
+    def _last_frame(self, duration: float | None) -> int:
+        """The frame that truncates the episode: the lead profile's end, or ``duration`` [s] if sooner."""
+        cfg = self.config
+        steps = len(self.v_lead_profile) - 1
+        if duration is not None and duration < steps * cfg.physics_dt:  # longer: the whole trajectory (1e308 too)
+            steps = int(round(duration / cfg.physics_dt))
+        return steps // cfg.substeps
+
+    def _draw_light(self, trajectory: str, rng: np.random.Generator) -> tuple[float, float]:
+        """The sun's (azimuth, elevation) [rad]: drawn for random leads and lead scenarios, else fixed."""
+        cfg = self.config
+        if cfg.randomize_light and (trajectory == "random" or trajectory in LEAD_SCENARIOS):
+            return (float(rng.uniform(-1.2, 1.2)), float(rng.uniform(*cfg.sun_elevation)))
+        return (0.6, 0.8)
+
+    def _place_cars(self, rng: np.random.Generator, v_host: float, gap0: float) -> None:
+        """A new physics space: the host at x = 0 at ``v_host`` [m/s], the lead ``gap0`` [m]
+        ahead at the profile's first speed, and the adjacent lanes' traffic."""
+        self.space = space = pymunk.Space()
+        space.on_collision(HOST, LEAD, begin=self._on_collision)
+        space.on_collision(HOST, TRAFFIC, begin=self._on_collision)
+        self.host = _car(space, HOST, 0.0, 0.0, pymunk.Body.DYNAMIC)
+        self.host.velocity = (v_host, 0.0)
+        self.lead = _car(space, LEAD, gap0 + CAR_LENGTH, 0.0, pymunk.Body.KINEMATIC)
+        self.lead.velocity = (float(self.v_lead_profile[0]), 0.0)
+        self._spawn_traffic(rng, float(np.mean(self.v_lead_profile)))
 
     def _start_preroll(self, preroll: int) -> None:
         # Every body moved back along its own speed; frame 0 puts back what is saved here.

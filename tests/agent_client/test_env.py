@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -72,6 +74,41 @@ def test_stack_stride_picks_older_frames(server):
             obs, *_ = env.step(20)
             seen.append(obs["speeds"][-1])
         np.testing.assert_allclose(obs["speeds"], [seen[2], seen[4], seen[6]])
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    ("reward", "scenario", "names"),
+    [
+        ("gap", "ice", {"gap"}),
+        ("force", "ice", {"gap", "force"}),
+        ("eco", "ice", {"gap", "energy", "comfort", "closing"}),
+        ("eco", "ev", {"gap", "energy", "comfort", "closing"}),
+    ],
+)
+def test_info_reward_terms_sum_to_the_reward(server, reward, scenario, names):
+    # A short real episode: each step's named terms add up to the reward the step paid,
+    # and the reward is the reward function's own value (not the terms' sum).
+    from agent_client.rewards import make_reward
+
+    fn = make_reward(reward, scenario)
+    env = VisionACCEnv(server, scenario=scenario, reward=reward, episode_seconds=2.0)
+    try:
+        _, info = env.reset(seed=4)
+        assert "reward_terms" not in info  # reset pays no reward
+        a_prev, nonzero = info["accel"], set()
+        for i in range(20):
+            _, r, terminated, truncated, info = env.step((20, 0, 13, 7, 10)[i % 5])
+            terms = info["reward_terms"]
+            assert set(terms) == names | {"crash"} and terms["crash"] == 0.0
+            assert math.fsum(terms.values()) == pytest.approx(r, rel=1e-12, abs=1e-15)
+            assert r == fn(info["gap"], info["force"], v=info["v_host"], a=info["accel"], a_prev=a_prev, v_lead=info["v_lead"])
+            a_prev = info["accel"]
+            nonzero |= {k for k, v in terms.items() if v != 0.0}
+            if terminated or truncated:
+                break
+        assert nonzero >= names - {"force"}  # every term of the reward was exercised
     finally:
         env.close()
 

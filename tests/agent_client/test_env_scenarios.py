@@ -97,7 +97,9 @@ def test_crash_reward_replaces_the_rewards_value_at_contact(server):
     reward, terminated, info = _crash_into_a_stopped_car(server)
     assert terminated and info["collision"]
     assert reward == force_reward(info["gap"], 0.0) == pytest.approx(0.0)  # Table 1 at contact: (-10 + 10) / 20
+    assert info["reward_terms"] == {"gap": -0.5, "force": 0.5, "crash": 0.0}  # no crash_reward: the reward's own terms
     reward, terminated, info = _crash_into_a_stopped_car(server, crash_reward=-1.0)
     assert terminated and info["collision"] and reward == -1.0
+    assert info["reward_terms"] == {"gap": 0.0, "force": 0.0, "crash": -1.0}  # the crash value replaced them
     with pytest.raises(ValueError, match="crash_reward must be finite"):
         VisionACCEnv(("127.0.0.1", 9), crash_reward=float("nan"))

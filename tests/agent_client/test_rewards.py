@@ -105,3 +105,70 @@ def test_eco_closing_term_penalises_a_speed_difference_to_the_lead_either_way():
     assert off(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=25.0) == off(55.0, 0.0, v=30.0, a=0.0, a_prev=0.0, v_lead=30.0)
     with pytest.raises(ValueError, match="needs 4 weights"):
         make_reward("eco", "ice", (1.0, 0.5))
+
+
+@pytest.mark.parametrize("weights", [None, (0.7, 0.3, 0.11, 0.9), (1.0, 0.0, 0.0, 0.0)])
+@pytest.mark.parametrize("scenario", ["ice", "ev"])
+def test_reward_terms_sum_to_the_reward(scenario, weights):
+    import math
+
+    from agent_client.rewards import ECO_WEIGHT_NAMES, REWARDS, make_reward, make_reward_terms
+
+    extra = {} if weights is None else {"eco_weights": weights}
+    names = {"gap": {"gap"}, "force": {"gap", "force"}, "eco": set(ECO_WEIGHT_NAMES)}
+    rng = np.random.default_rng(1)
+    for name in REWARDS:
+        fn, terms_fn = make_reward(name, scenario, **extra), make_reward_terms(name, scenario, **extra)
+        for _ in range(300):
+            gap, u = float(rng.uniform(-5, 350)), float(rng.uniform(-1, 1))
+            kw = {"v": float(rng.uniform(0, 35)), "a": float(rng.uniform(-5.5, 3.5)), "a_prev": float(rng.uniform(-5.5, 3.5))}
+            if rng.random() < 0.8:
+                kw["v_lead"] = float(rng.uniform(0, 35))
+            terms = terms_fn(gap, u, **kw)
+            assert set(terms) == names[name]
+            assert math.fsum(terms.values()) == pytest.approx(fn(gap, u, **kw), rel=1e-12, abs=1e-15)
+    with pytest.raises(ValueError, match="reward 'speed'"):
+        make_reward_terms("speed", scenario)
+    with pytest.raises(ValueError, match="needs 4 weights"):
+        make_reward_terms("eco", scenario, (1.0, 0.5))
+
+
+def test_eco_terms_are_the_single_terms_signed_by_the_eco_reward():
+    from agent_client.rewards import (
+        closing_term,
+        comfort_term,
+        eco_desired_gap,
+        eco_reward_terms,
+        eco_terms,
+        energy_term,
+    )
+
+    t = eco_terms(40.0, v=20.0, a=1.0, a_prev=-0.5, v_lead=22.0, scenario="ev")
+    assert t.gap == gap_term(40.0, eco_desired_gap(20.0))
+    assert t.energy == energy_term(20.0, 1.0, "ev") and t.comfort == comfort_term(1.0, -0.5) and t.closing == closing_term(20.0, 22.0)
+    assert eco_terms(40.0, v=20.0, a=1.0, a_prev=-0.5).closing == 0.0  # no lead speed: no closing term
+    w = eco_reward_terms(40.0, 0.0, v=20.0, a=1.0, a_prev=-0.5, v_lead=22.0, scenario="ev", weights=(1.0, 1.0, 1.0, 1.0))
+    assert w == pytest.approx({"gap": t.gap / 40, "energy": -t.energy / 4, "comfort": -t.comfort / 4, "closing": -t.closing / 4})
+
+
+def test_reward_ablation_scores_a_log_as_the_eco_reward_pays_it(tmp_path):
+    # scripts/reward_ablation.py reads run logs (no env runs there): its mean terms under a
+    # weighting are the mean eco reward those rows would have been paid.
+    import importlib.util
+    from pathlib import Path
+
+    from agent_client.rewards import ECO_WEIGHTS, make_reward
+
+    spec = importlib.util.spec_from_file_location("reward_ablation", Path(__file__).resolve().parents[2] / "scripts" / "reward_ablation.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    rows = [(30.0, 29.0, 40.0, 0.0), (30.2, 28.5, 39.0, 2.0), (30.1, 28.0, 37.5, -1.0), (29.5, 28.0, 36.0, -3.0)]
+    log = tmp_path / "acc-1.csv"
+    log.write_text("v_host,v_lead,gap,accel\n" + "".join(f"{v},{vl},{g},{a}\n" for v, vl, g, a in rows))
+    for scenario in ("ice", "ev"):
+        for w in (ECO_WEIGHTS, (1.0, 1.0, 0.0, 0.5)):
+            fn, paid, a_prev = make_reward("eco", scenario, w), [], 0.0
+            for v, vl, g, a in rows[1:]:  # the first row is the reset's: no reward
+                paid.append(fn(g, 0.0, v=v, a=a, a_prev=a_prev, v_lead=vl))
+                a_prev = a
+            assert float(np.dot(script.mean_terms(log, scenario), w) / sum(w)) == pytest.approx(np.mean(paid), rel=1e-12)
