@@ -16,6 +16,7 @@ from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
 from agent_client.rl.evaluation import eval_episode
+from agent_client.rl.teachers import TEACHERS
 from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
@@ -30,7 +31,6 @@ __all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUM
 
 SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
-TEACHERS = ("none", "policy", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin", "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin", "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin")  # who labels the states in teacher (DAgger) runs
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
