@@ -325,120 +325,192 @@ class Config:
     """(servers > 1) transitions an actor collects per delivery to the learner."""
 
     def __post_init__(self) -> None:
-        from agent_client.rewards import REWARDS
-
-        def bad(name: str, message: str) -> ConfigError:
-            return ConfigError(name, f"{name} {message}")
-
-        if self.reward not in REWARDS:
-            raise bad("reward", f"{self.reward!r} is not one of {sorted(REWARDS)}")
-        if self.scenario not in ("ice", "ev"):
-            raise bad("scenario", f"{self.scenario!r} is not 'ice' or 'ev'")
-        if (why := check_eco_weights(tuple(self.eco_weights))) is not None:
-            raise bad("eco_weights", why)
-        if self.crash_reward is not None and not CRASH_REWARD_RANGE[0] <= self.crash_reward <= CRASH_REWARD_RANGE[1]:
-            raise bad("crash_reward", f"must be in [{CRASH_REWARD_RANGE[0]:g}, {CRASH_REWARD_RANGE[1]:g}], got {self.crash_reward}")
-        if not TRAFFIC_PER_LANE_RANGE[0] <= self.train_traffic <= TRAFFIC_PER_LANE_RANGE[1]:
-            raise bad("train_traffic", f"must be in [{TRAFFIC_PER_LANE_RANGE[0]}, {TRAFFIC_PER_LANE_RANGE[1]}] cars a lane, got {self.train_traffic}")
-        if (why := check_sun_elevation(tuple(self.train_sun_elevation))) is not None:
-            raise bad("train_sun_elevation", why)
-        if self.teacher not in TEACHERS:
-            raise bad("teacher", f"{self.teacher!r} is not one of {TEACHERS}")
-        if (self.teacher == "policy") != (self.teacher_policy is not None):
-            raise bad("teacher_policy", "is the checkpoint of --teacher policy: give both or neither")
-        if len(self.conv_channels) != 3 or not all(isinstance(c, int) and 1 <= c <= 512 for c in self.conv_channels):
-            raise bad("conv_channels", f"must be three whole numbers in 1..512, got {','.join(map(str, self.conv_channels))}")
-        if not 1 <= self.hidden <= 4096:
-            raise bad("hidden", f"must be in 1..4096, got {self.hidden}")
-        if not self.teacher_brake >= 0.0:
-            raise bad("teacher_brake", "must be >= 0")
-        if not self.brake_weight > 0.0:
-            raise bad("brake_weight", "must be > 0")
-        if self.brake_weight != 1.0 and self.teacher == "none":
-            raise bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
-        if not (math.isfinite(self.teacher_lag) and self.teacher_lag >= 0.0):
-            raise bad("teacher_lag", f"must be finite and >= 0 s, got {self.teacher_lag}")
-        if self.teacher_lag > 0.0 and self.teacher == "policy":
-            raise bad("teacher_lag", "delays a law's view of the closing speed: a policy teacher sees the frames as they are")
-        if self.teacher_lag > 0.0 and self.teacher == "none":
-            raise bad("teacher_lag", "delays a teacher's view of the closing speed: it needs a teacher")
-        if self.teacher_steps < 1:
-            raise bad("teacher_steps", "must be >= 1")
-        if not (math.isfinite(self.aux_gap) and self.aux_gap >= 0.0):
-            raise bad("aux_gap", f"must be finite and >= 0, got {self.aux_gap}")
-        if not (math.isfinite(self.aux_closing) and self.aux_closing >= 0.0):
-            raise bad("aux_closing", f"must be finite and >= 0, got {self.aux_closing}")
-        if not (math.isfinite(self.brake_margin) and self.brake_margin >= 0.0):
-            raise bad("brake_margin", f"must be finite and >= 0, got {self.brake_margin}")
-        if self.brake_margin > 0.0 and self.teacher != "none":
-            raise bad("brake_margin", "is a Double DQN loss; a teacher run learns the teacher's labels instead")
-        if self.action not in ACTION_TYPES:
-            raise bad("action", f"{self.action!r} is not one of {ACTION_TYPES}")
-        if self.decision not in DECISIONS:
-            raise bad("decision", f"{self.decision!r} is not one of {DECISIONS}")
-        if self.decision == "mean" and (self.teacher == "none" or self.action not in RAMP_ACTIONS):
-            raise bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
-        if not self.decision_temperature > 0.0:
-            raise bad("decision_temperature", "must be > 0")
-        if not 0.0 < self.decision_brake_share <= 1.0:
-            raise bad("decision_brake_share", f"must be in (0, 1], got {self.decision_brake_share}")
-        if not 0.0 <= self.decision_deadband < 0.5:
-            raise bad("decision_deadband", f"must be in [0, 0.5), got {self.decision_deadband}")
-        if self.decision_deadband > 0.0 and self.decision != "mean":
-            raise bad("decision_deadband", "it holds the ramp's force near the mean's target: it needs decision 'mean'")
-        if not 0.0 < self.decision_smoothing <= 1.0:
-            raise bad("decision_smoothing", f"must be in (0, 1], got {self.decision_smoothing}")
-        if self.decision_smoothing < 1.0 and self.decision != "mean":
-            raise bad("decision_smoothing", "it lags the mean's target: it needs decision 'mean'")
-        if self.decision_brake_confirm < 1:
-            raise bad("decision_brake_confirm", f"must be >= 1, got {self.decision_brake_confirm}")
-        if self.decision_brake_confirm > 1 and self.decision_brake_share >= 1.0:
-            raise bad("decision_brake_confirm", "confirms the brake share's full brake: it needs decision_brake_share below 1")
-        if self.decision_full_brake_confirm < 1:
-            raise bad("decision_full_brake_confirm", f"must be >= 1, got {self.decision_full_brake_confirm}")
-        if self.decision_full_brake_confirm > 1 and self.decision != "mean":
-            raise bad("decision_full_brake_confirm", "it ramps toward an unconfirmed full brake: it needs decision 'mean'")
-        if self.decision_brake_share < 1.0 and self.decision != "mean":
-            raise bad("decision_brake_share", "below 1 it reads the outputs as a softmax: it needs decision 'mean'")
-        if not self.train_trajectories:
-            raise bad("train_trajectories", "must name at least one trajectory")
-        for name in self.train_trajectories:
-            if name != RANDOM and name not in LEAD_SCENARIOS:
-                raise bad("train_trajectories", f"{name!r} is not {RANDOM!r} or a lead scenario ({', '.join(LEAD_SCENARIOS)})")
-        if self.schedule not in SCHEDULES:
-            raise bad("schedule", f"{self.schedule!r} is not one of {SCHEDULES}")
-        if self.servers != 1 and (needs := single_stream_only(self)) is not None:
-            raise ConfigError(*needs)
-        for name in ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every",
-                     "frame_stack", "stack_stride", "servers", "weight_sync_every", "actor_batch", "torch_threads",
-                     "exploration_steps", "checkpoint_every", "log_every"):  # fmt: skip
-            if getattr(self, name) < 1:
-                raise bad(name, "must be >= 1")
-        for name in ("learning_starts", "eval_every"):
-            if getattr(self, name) < 0:
-                raise bad(name, "must be >= 0")
-        if not 0.0 <= self.gamma < 1.0:
-            raise bad("gamma", "must be in [0, 1)")
-        for name in ("start_e", "end_e"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise bad(name, "must be in [0, 1]")
-        if not self.learning_rate > 0.0:
-            raise bad("learning_rate", "must be > 0")
-        if not SET_SPEED_RANGE[0] <= self.set_speed <= SET_SPEED_RANGE[1]:
-            raise bad("set_speed", f"must be in {SET_SPEED_RANGE[0]:g}..{SET_SPEED_RANGE[1]:g} m/s")
-        if self.zoom not in ZOOMS:
-            raise bad("zoom", f"must be one of {ZOOMS}")
-        for name in self.eval_trajectories:
-            try:
-                eval_episode(name)  # a typo fails here, not at the first evaluation hours later
-            except ValueError as exc:
-                raise ConfigError("eval_trajectories", str(exc)) from None
+        for check in SECTION_CHECKS.values():
+            check(self)
+        check_across_sections(self)
 
     @property
     def stores_gaps(self) -> bool:
         """Whether the replay keeps each observation's gap: the privileged target of the
         auxiliary heads and the brake margin's emergencies, never an input."""
         return self.aux_gap > 0.0 or self.aux_closing > 0.0 or self.brake_margin > 0.0
+
+
+# Which fields each section of the settings holds; every field is in one, and each
+# section's check reads only its own fields (check_across_sections reads several).
+SECTIONS: dict[str, tuple[str, ...]] = {
+    "environment": ("reward", "scenario", "set_speed", "eco_weights", "action", "train_trajectories", "train_traffic",
+                    "train_sun_elevation", "crash_reward", "episode_seconds"),
+    "dqn": ("total_steps", "seed", "schedule", "learning_rate", "adam_eps", "buffer_size", "gamma", "target_sync_every",
+            "batch_size", "start_e", "end_e", "exploration_steps", "learning_starts", "train_every", "max_grad_norm",
+            "n_step", "absorbing_terminal", "checkpoint_every", "init_from", "torch_threads", "cuda", "log_every"),
+    "network": ("frame_stack", "stack_stride", "preroll", "speed_scale", "conv_channels", "hidden", "zoom"),
+    "evaluation": ("eval_every", "eval_trajectories", "eval_seconds", "keep_evals"),
+    "teacher": ("teacher", "teacher_policy", "teacher_brake", "brake_weight", "teacher_lag", "teacher_steps"),
+    "auxiliary": ("aux_gap", "aux_closing", "brake_margin"),
+    "decision": ("decision", "decision_temperature", "decision_brake_share", "decision_brake_confirm",
+                 "decision_full_brake_confirm", "decision_deadband", "decision_smoothing"),
+    "streams": ("servers", "weight_sync_every", "actor_batch"),
+}  # fmt: skip
+
+
+def _bad(name: str, message: str) -> ConfigError:
+    return ConfigError(name, f"{name} {message}")
+
+
+def _at_least(cfg: Config, names: tuple[str, ...], low: int) -> None:
+    """Raises ConfigError: the first of ``names`` below ``low``."""
+    for name in names:
+        if getattr(cfg, name) < low:
+            raise _bad(name, f"must be >= {low}")
+
+
+def _finite_and_not_negative(cfg: Config, names: tuple[str, ...]) -> None:
+    """Raises ConfigError: the first of ``names`` that is not finite and >= 0."""
+    for name in names:
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0.0):
+            raise _bad(name, f"must be finite and >= 0, got {getattr(cfg, name)}")
+
+
+def check_environment(cfg: Config) -> None:
+    """The reward, scenario, action and training episodes. Raises ConfigError."""
+    from agent_client.rewards import REWARDS
+
+    if cfg.reward not in REWARDS:
+        raise _bad("reward", f"{cfg.reward!r} is not one of {sorted(REWARDS)}")
+    if cfg.scenario not in ("ice", "ev"):
+        raise _bad("scenario", f"{cfg.scenario!r} is not 'ice' or 'ev'")
+    if (why := check_eco_weights(tuple(cfg.eco_weights))) is not None:
+        raise _bad("eco_weights", why)
+    low, high = CRASH_REWARD_RANGE
+    if cfg.crash_reward is not None and not low <= cfg.crash_reward <= high:
+        raise _bad("crash_reward", f"must be in [{low:g}, {high:g}], got {cfg.crash_reward}")
+    low, high = TRAFFIC_PER_LANE_RANGE
+    if not low <= cfg.train_traffic <= high:
+        raise _bad("train_traffic", f"must be in [{low}, {high}] cars a lane, got {cfg.train_traffic}")
+    if (why := check_sun_elevation(tuple(cfg.train_sun_elevation))) is not None:
+        raise _bad("train_sun_elevation", why)
+    if cfg.action not in ACTION_TYPES:
+        raise _bad("action", f"{cfg.action!r} is not one of {ACTION_TYPES}")
+    if not cfg.train_trajectories:
+        raise _bad("train_trajectories", "must name at least one trajectory")
+    for name in cfg.train_trajectories:
+        if name != RANDOM and name not in LEAD_SCENARIOS:
+            raise _bad("train_trajectories", f"{name!r} is not {RANDOM!r} or a lead scenario ({', '.join(LEAD_SCENARIOS)})")
+    if not SET_SPEED_RANGE[0] <= cfg.set_speed <= SET_SPEED_RANGE[1]:
+        raise _bad("set_speed", f"must be in {SET_SPEED_RANGE[0]:g}..{SET_SPEED_RANGE[1]:g} m/s")
+
+
+def check_dqn(cfg: Config) -> None:
+    """The Double DQN's schedule, sizes and rates. Raises ConfigError."""
+    if cfg.schedule not in SCHEDULES:
+        raise _bad("schedule", f"{cfg.schedule!r} is not one of {SCHEDULES}")
+    _at_least(cfg, ("total_steps", "n_step", "buffer_size", "batch_size", "train_every", "target_sync_every",
+                    "torch_threads", "exploration_steps", "checkpoint_every", "log_every"), 1)  # fmt: skip
+    _at_least(cfg, ("learning_starts",), 0)
+    if not 0.0 <= cfg.gamma < 1.0:
+        raise _bad("gamma", "must be in [0, 1)")
+    for name in ("start_e", "end_e"):
+        if not 0.0 <= getattr(cfg, name) <= 1.0:
+            raise _bad(name, "must be in [0, 1]")
+    if not cfg.learning_rate > 0.0:
+        raise _bad("learning_rate", "must be > 0")
+
+
+def check_network(cfg: Config) -> None:
+    """What the network sees and its widths. Raises ConfigError."""
+    if len(cfg.conv_channels) != 3 or not all(isinstance(c, int) and 1 <= c <= 512 for c in cfg.conv_channels):
+        raise _bad("conv_channels", f"must be three whole numbers in 1..512, got {','.join(map(str, cfg.conv_channels))}")
+    if not 1 <= cfg.hidden <= 4096:
+        raise _bad("hidden", f"must be in 1..4096, got {cfg.hidden}")
+    _at_least(cfg, ("frame_stack", "stack_stride"), 1)
+    if cfg.zoom not in ZOOMS:
+        raise _bad("zoom", f"must be one of {ZOOMS}")
+
+
+def check_evaluation(cfg: Config) -> None:
+    """The evaluations that pick best.pt. Raises ConfigError."""
+    _at_least(cfg, ("eval_every",), 0)
+    for name in cfg.eval_trajectories:
+        try:
+            eval_episode(name)  # a typo fails here, not at the first evaluation hours later
+        except ValueError as exc:
+            raise ConfigError("eval_trajectories", str(exc)) from None
+
+
+def check_teacher(cfg: Config) -> None:
+    """The teacher (DAgger) run's labels. Raises ConfigError."""
+    if cfg.teacher not in TEACHERS:
+        raise _bad("teacher", f"{cfg.teacher!r} is not one of {TEACHERS}")
+    if (cfg.teacher == "policy") != (cfg.teacher_policy is not None):
+        raise _bad("teacher_policy", "is the checkpoint of --teacher policy: give both or neither")
+    if not cfg.teacher_brake >= 0.0:
+        raise _bad("teacher_brake", "must be >= 0")
+    if not cfg.brake_weight > 0.0:
+        raise _bad("brake_weight", "must be > 0")
+    if cfg.brake_weight != 1.0 and cfg.teacher == "none":
+        raise _bad("brake_weight", "weights a teacher's labels: it needs a teacher (Double DQN has no labels)")
+    if not (math.isfinite(cfg.teacher_lag) and cfg.teacher_lag >= 0.0):
+        raise _bad("teacher_lag", f"must be finite and >= 0 s, got {cfg.teacher_lag}")
+    if cfg.teacher_lag > 0.0 and cfg.teacher == "policy":
+        raise _bad("teacher_lag", "delays a law's view of the closing speed: a policy teacher sees the frames as they are")
+    if cfg.teacher_lag > 0.0 and cfg.teacher == "none":
+        raise _bad("teacher_lag", "delays a teacher's view of the closing speed: it needs a teacher")
+    _at_least(cfg, ("teacher_steps",), 1)
+
+
+def check_auxiliary(cfg: Config) -> None:
+    """The auxiliary heads' and the brake margin's weights. Raises ConfigError."""
+    _finite_and_not_negative(cfg, SECTIONS["auxiliary"])
+
+
+def check_decision(cfg: Config) -> None:
+    """How the outputs become the force. Raises ConfigError."""
+    if cfg.decision not in DECISIONS:
+        raise _bad("decision", f"{cfg.decision!r} is not one of {DECISIONS}")
+    if not cfg.decision_temperature > 0.0:
+        raise _bad("decision_temperature", "must be > 0")
+    for name, value, ok, text in (
+        ("decision_brake_share", cfg.decision_brake_share, 0.0 < cfg.decision_brake_share <= 1.0, "in (0, 1]"),
+        ("decision_deadband", cfg.decision_deadband, 0.0 <= cfg.decision_deadband < 0.5, "in [0, 0.5)"),
+        ("decision_smoothing", cfg.decision_smoothing, 0.0 < cfg.decision_smoothing <= 1.0, "in (0, 1]"),
+        ("decision_brake_confirm", cfg.decision_brake_confirm, cfg.decision_brake_confirm >= 1, ">= 1"),
+        ("decision_full_brake_confirm", cfg.decision_full_brake_confirm, cfg.decision_full_brake_confirm >= 1, ">= 1"),
+    ):  # fmt: skip
+        if not ok:
+            raise _bad(name, f"must be {text}, got {value}")
+    if cfg.decision_brake_confirm > 1 and cfg.decision_brake_share >= 1.0:
+        raise _bad("decision_brake_confirm", "confirms the brake share's full brake: it needs decision_brake_share below 1")
+    if cfg.decision != "mean":
+        for name, used, why in (
+            ("decision_deadband", cfg.decision_deadband > 0.0, "it holds the ramp's force near the mean's target"),
+            ("decision_smoothing", cfg.decision_smoothing < 1.0, "it lags the mean's target"),
+            ("decision_full_brake_confirm", cfg.decision_full_brake_confirm > 1, "it ramps toward an unconfirmed full brake"),
+            ("decision_brake_share", cfg.decision_brake_share < 1.0, "below 1 it reads the outputs as a softmax"),
+        ):  # fmt: skip
+            if used:
+                raise _bad(name, f"{why}: it needs decision 'mean'")
+
+
+def check_streams(cfg: Config) -> None:
+    """The K-stream trainer's sizes. Raises ConfigError."""
+    _at_least(cfg, SECTIONS["streams"], 1)
+
+
+SECTION_CHECKS = {
+    "environment": check_environment, "dqn": check_dqn, "network": check_network, "evaluation": check_evaluation,
+    "teacher": check_teacher, "auxiliary": check_auxiliary, "decision": check_decision, "streams": check_streams,
+}  # fmt: skip
+
+
+def check_across_sections(cfg: Config) -> None:
+    """The checks that read more than one section. Raises ConfigError."""
+    if cfg.brake_margin > 0.0 and cfg.teacher != "none":
+        raise _bad("brake_margin", "is a Double DQN loss; a teacher run learns the teacher's labels instead")
+    if cfg.decision == "mean" and (cfg.teacher == "none" or cfg.action not in RAMP_ACTIONS):
+        raise _bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
+    if cfg.servers != 1 and (needs := single_stream_only(cfg)) is not None:
+        raise ConfigError(*needs)
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:
