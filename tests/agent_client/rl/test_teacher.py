@@ -334,3 +334,13 @@ def test_the_teacher_registry_is_the_one_source_of_the_names_and_the_laws():
             assert dataclasses.replace(law, d_safe=plain.d_safe, d_min=plain.d_min) == plain
     with pytest.raises(ValueError, match="not one of"):
         teacher_law("acc-margin")
+
+
+def test_every_teacher_has_its_row_in_the_docs_table():
+    from pathlib import Path
+
+    from agent_client.rl.teachers import REGISTRY
+
+    docs = (Path(__file__).parents[3] / "docs" / "training.md").read_text()
+    for name, t in REGISTRY.items():
+        assert f"| `{name}` |" in docs and t.about in docs, name
