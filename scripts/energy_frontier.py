@@ -53,7 +53,7 @@ from agent_client.actions import FineRamp
 from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.rewards import CONTROL_PERIOD as DT
 from agent_client.rewards import ECO_TIME_GAP
-from agent_client.rl.learner import TEACHER_55_GENTLE, TEACHER_MARGIN_GAPS
+from agent_client.rl.teachers import MARGIN_GAPS, REGISTRY
 from energy.cmem import COROLLA_2022
 from energy.cmem import per_mile as cmem_per_mile
 from energy.errors import TraceError
@@ -77,7 +77,7 @@ MPC_HORIZON = 10.0  # [s] how far ahead the predictive followers plan
 MPC_FADE = 5.0  # [s] the time constant over which they expect the lead's acceleration to fade
 MPC_LAMS = (0.01, 0.015, 0.02, 0.03)  # their gap weights [kJ/(m^2 s)]
 FALLBACK_SPEED_GAIN, FALLBACK_GAP_GAIN = 1.0, 0.1  # [1/s], [1/s^2] the lead copy they fall back on at a standstill
-DECEL_CAP = TEACHER_55_GENTLE[2]  # [m/s^2] the gentle teachers' braking cap
+DECEL_CAP = REGISTRY["acc-55-gentle"].decel_cap  # [m/s^2] the gentle teachers' braking cap
 
 
 def energy_per_mile(scenario: str, t: np.ndarray, v: np.ndarray) -> float:
@@ -87,7 +87,7 @@ def energy_per_mile(scenario: str, t: np.ndarray, v: np.ndarray) -> float:
 
 def teacher_law(scenario: str, beta: float, gamma: float) -> AccController:
     """The law of the grid at (beta, gamma), with the eco-margin gaps (see the module docstring)."""
-    d_safe, d_min = TEACHER_MARGIN_GAPS
+    d_safe, d_min = MARGIN_GAPS
     if scenario == "ev":
         return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=DECEL_CAP, d_safe=d_safe, d_min=d_min)
     return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=beta, gamma=gamma, d_safe=d_safe, d_min=d_min)

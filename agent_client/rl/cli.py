@@ -184,28 +184,22 @@ def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) 
 
 
 @click.command("train")
-@click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="Start from a run's config.json: its settings are the defaults, options given override them.")
+@click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="A run's config.json: its settings become the defaults.")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
-@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt and the replay file it names.")
-@click.option("--overwrite", is_flag=True, help="Start afresh in an --out that already holds a run: first remove the files a run writes there (config, scalars, TensorBoard events, checkpoints, replay), nothing else.")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt.")
+@click.option("--overwrite", is_flag=True, help="First remove a previous run's files in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
-@click.option("--ray", "use_ray", is_flag=True, help="Run the servers and their actors as Ray actors (pip install 'vacc[ray]').")
-@click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT of a running cluster (default: a local Ray instance).")
-@click.option("--actor-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True), help="With --ray: CPUs reserved per actor (its server included).")
-@click.option("--max-restarts", default=3, show_default=True, type=click.IntRange(min=0), help="With --servers > 1 or --ray: restarts of a dead actor before it is given up.")
+@click.option("--ray", "use_ray", is_flag=True, help="Run servers and actors as Ray actors (vacc[ray]).")
+@click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT (default: local).")
+@click.option("--actor-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True), help="With --ray: CPUs per actor and its server.")
+@click.option("--max-restarts", default=3, show_default=True, type=click.IntRange(min=0), help="Restarts of a dead actor (servers > 1 or --ray).")
 @config_options
 def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, ray_address: str | None, actor_cpus: float,
           max_restarts: int, **values: Any) -> None:  # fmt: skip
     """Train a Double-DQN policy from camera frames against spawned simulator servers.
 
-    Writes OUT/config.json, OUT/scalars.csv, OUT/latest.pt (+ replay-STEP.npz) and
-    OUT/best.pt (the policy with the best evaluation; drive it with
-    `vacc drive --controller ddqn --checkpoint OUT/best.pt`).
-
-    By default the simulator and acting run on one core and the gradient steps on
-    another (--schedule parallel); --schedule serial is the one-core schedule the
-    shipped models were trained with. --servers K runs K simulator servers, each with
-    its own acting process, feeding one learner; --ray runs them as Ray actors.
+    Writes config.json, scalars.csv, latest.pt and best.pt (the best evaluation's policy)
+    in OUT. Why the defaults are what they are: docs/training.md, "Options".
     """
     cfg = make_config(values)
     if ray_address is not None and not use_ray:

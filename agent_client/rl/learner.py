@@ -29,7 +29,7 @@ from torch.nn.utils import parameters_to_vector
 from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.errors import InputFileError
-from agent_client.rewards import CONTROL_PERIOD, ECO_TIME_GAP
+from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_VERSION,
@@ -53,7 +53,8 @@ from agent_client.rl.network import (
 )
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
-from protocol.constants import A_MIN, DESIRED_GAP, MIN_GAP
+from agent_client.rl.teachers import teacher_law
+from protocol.constants import A_MIN, MIN_GAP
 
 __all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP"]
 
@@ -152,39 +153,6 @@ def brake_margin_loss(q_all: torch.Tensor, emergency: torch.Tensor) -> torch.Ten
     return (gaps * w).sum() / w.sum().clamp(min=1.0)
 
 
-TEACHER_55_GAINS = (0.3, 1.0)  # (beta [1/s^2], gamma [1/s]) of the "acc-55" teacher
-# (beta, gamma, decel_cap [m/s^2]) of the "acc-55-gentle" teacher: its law never brakes
-# harder than 3 m/s^2, so it never labels the full brake (released only at the ramp's
-# rate) but in the collision-avoidance limit; chosen on random EV seeds 200-213 (docs/training.md)
-TEACHER_55_GENTLE = (0.4, 2.0, 3.0)
-# (beta, gamma, decel_cap) of the "acc-55-eco" teacher: the gentle law matching the lead's
-# speed harder, which spends less (1.2 % over the ACC against 1.9 %, through the ramp) at
-# a worst gap RMSE still under 5.1 m; chosen on random EV seeds 200-215 by
-# scripts/energy_frontier.py (docs/training.md)
-TEACHER_55_ECO = (0.4, 3.0, 3.0)
-# (beta, gamma, decel_cap) of the "acc-55-calm" and "acc-55-calmer" teachers: gentle laws with
-# lower gains, for a student that sees the lead's speed about half a second late. Replayed
-# behind random EV leads 200-215 with the closing speed lagged by 0.5 s, the gentle law
-# spends 8-10 % over the ACC and these 3.7-4.0 % and 2.3-2.8 % (docs/training.md)
-TEACHER_55_CALM = (0.3, 1.5, 3.0)
-TEACHER_55_CALMER = (0.25, 1.5, 3.0)
-# (beta, gamma) of the "eco" teacher: gentler than the ACC's (0.23, 0.07 on a 1.8 s gap) on
-# the eco reward's desired gap; chosen on random ICE seeds 200-213 (docs/training.md)
-TEACHER_ECO_GAINS = (0.1, 0.3)
-# (beta, gamma) of the "eco-firm" teacher: the eco law opening the gap from a close start
-# faster (worst gap RMSE 3.71 m against 3.92 m through the ramp) for 1.7 % more fuel, still
-# 1.6 % under the ACC's; chosen on random ICE seeds 200-215 (docs/training.md)
-TEACHER_ECO_FIRM_GAINS = (0.15, 0.3)
-# (beta, gamma) of the "eco-mid" teacher: between the two, 2.5 % under the ACC's fuel at a worst
-# gap RMSE of 3.20 m through the ramp; chosen on random ICE seeds 300-307 by
-# scripts/energy_frontier.py --scenario ice (docs/training.md)
-TEACHER_ECO_MID_GAINS = (0.125, 0.3)
-# (standstill distance d_safe, closest approach d_min) [m] of the "-margin" teachers: 3 m
-# more than the ACC's, about what the eco student, seeing the danger a few frames late,
-# overran its teacher by (1.27 m behind a stopped car where the teacher stops at 4.6 m)
-TEACHER_MARGIN_GAPS = (8.0, 6.0)
-
-
 def label_weights(cfg: Config) -> torch.Tensor:
     """The cross-entropy's weight per label: ``cfg.brake_weight`` on the hardest brake, 1 elsewhere."""
     w = torch.ones(make_action_type(cfg.action).n)
@@ -192,14 +160,9 @@ def label_weights(cfg: Config) -> torch.Tensor:
     return w
 
 
-LAWS_55 = {"acc-55-gentle": TEACHER_55_GENTLE, "acc-55-eco": TEACHER_55_ECO, "acc-55-calm": TEACHER_55_CALM, "acc-55-calmer": TEACHER_55_CALMER}
-ECO_LAWS = {"eco": TEACHER_ECO_GAINS, "eco-mid": TEACHER_ECO_MID_GAINS, "eco-firm": TEACHER_ECO_FIRM_GAINS}
-
-
 def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | None:
-    """The privileged teacher of a DAgger run (:data:`~agent_client.rl.config.TEACHERS`), or None.
+    """The privileged teacher of a DAgger run (:data:`~agent_client.rl.teachers.REGISTRY`), or None.
 
-    A "-margin" name is its law stopping 3 m further back (:data:`TEACHER_MARGIN_GAPS`).
     ``lag`` > 0 [s]: the law's following term sees the closing speed that late
     (:class:`~agent_client.controllers.acc.LateClosing`, ``Config.teacher_lag``).
     """
@@ -207,7 +170,7 @@ def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | N
         return None
     if name == "policy":
         raise ValueError("the policy teacher is a network: PolicyTeacher(cfg), with cfg.teacher_policy")
-    law = _teacher_law(name)
+    law = teacher_law(name)
     return LateClosing(law, lag, CONTROL_PERIOD) if lag > 0.0 else law
 
 
@@ -241,21 +204,6 @@ class PolicyTeacher:
         holds the student's force)."""
         d = self.policy(obs)
         return d, d.action if d.target is None else held.imitate(d.target, hard_brake)
-
-
-def _teacher_law(name: str) -> AccController:
-    """The ACC law a teacher name stands for."""
-    law = name.removesuffix("-margin")
-    gaps = dict(zip(("d_safe", "d_min"), TEACHER_MARGIN_GAPS, strict=True)) if law != name else {}
-    if law == "acc-55":  # the gains that hold 55 m on the EV test windows (docs/training.md)
-        return AccController(fixed_gap=DESIRED_GAP, beta=TEACHER_55_GAINS[0], gamma=TEACHER_55_GAINS[1], **gaps)
-    if law in LAWS_55:
-        beta, gamma, decel_cap = LAWS_55[law]
-        return AccController(fixed_gap=DESIRED_GAP, beta=beta, gamma=gamma, decel_cap=decel_cap, **gaps)
-    if law in ECO_LAWS:  # the ACC law on eco_desired_gap: clip(2 s v, 5 m, 55 m)
-        beta, gamma = ECO_LAWS[law]
-        return AccController(t_gap=ECO_TIME_GAP, max_gap=DESIRED_GAP, beta=beta, gamma=gamma, **gaps)
-    return AccController(**gaps)
 
 
 class Learner:

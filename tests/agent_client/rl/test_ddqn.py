@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import os
 import signal
@@ -563,3 +564,25 @@ def test_a_row_torn_by_a_kill_is_dropped_on_resume_and_rows_reach_the_disk_while
     log.add("charts/x", 3.0, 14)
     assert "14,charts/x,3" in (tmp_path / "scalars.csv").read_text()
     log.close()
+
+
+def test_every_config_field_is_in_one_section_and_each_section_has_its_check():
+    from agent_client.rl.config import SECTION_CHECKS, SECTIONS
+
+    names = [name for fields in SECTIONS.values() for name in fields]
+    assert sorted(names) == sorted(f.name for f in dataclasses.fields(Config))  # each in exactly one
+    assert SECTION_CHECKS.keys() == SECTIONS.keys()
+
+
+@pytest.mark.parametrize("bad", [
+    {"set_speed": 99.0}, {"train_traffic": -1}, {"gamma": 1.0}, {"batch_size": 0}, {"hidden": 0}, {"zoom": 3},
+    {"eval_trajectories": ("nowhere",)}, {"teacher_lag": -1.0}, {"aux_closing": float("nan")},
+    {"decision_smoothing": 0.0}, {"actor_batch": 0}, {"teacher_policy": "x.pt"},
+])  # fmt: skip
+def test_a_bad_setting_fails_naming_its_field(bad):
+    from agent_client.rl.config import ConfigError
+
+    (name,) = bad
+    with pytest.raises(ConfigError) as info:
+        Config(**bad)
+    assert info.value.field == name

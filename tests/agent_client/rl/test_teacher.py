@@ -3,6 +3,8 @@ cross-entropy update, and a teacher run end to end."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -313,3 +315,33 @@ def test_the_eco_teacher_aims_at_the_eco_rewards_desired_gap():
     # gentler than the ACC where the gap is short of its target: a smaller brake, the same sign
     obs = {"gap": 30.0, "v_host": 30.0, "v_lead": 30.0, "a_lead": 0.0, "set_speed": 33.5}
     assert acc(obs) < eco(obs) < 0.0
+
+
+def test_the_teacher_registry_is_the_one_source_of_the_names_and_the_laws():
+    from agent_client.rl.config import TEACHERS
+    from agent_client.rl.teachers import MARGIN_GAPS, REGISTRY, teacher_law
+
+    assert TEACHERS == tuple(REGISTRY)
+    for name, t in REGISTRY.items():
+        assert t.name == name and t.about and "\n" not in t.about
+        if t.gap is None:
+            with pytest.raises(ValueError, match="not an ACC law"):
+                teacher_law(name)
+            continue
+        law = teacher_law(name)
+        assert (law.d_safe, law.d_min) == (MARGIN_GAPS if name.endswith("-margin") else (5.0, 3.0))
+        if name.endswith("-margin"):  # the same law as its plain entry, further back
+            plain = teacher_law(name.removesuffix("-margin"))
+            assert dataclasses.replace(law, d_safe=plain.d_safe, d_min=plain.d_min) == plain
+    with pytest.raises(ValueError, match="not one of"):
+        teacher_law("acc-margin")
+
+
+def test_every_teacher_has_its_row_in_the_docs_table():
+    from pathlib import Path
+
+    from agent_client.rl.teachers import REGISTRY
+
+    docs = (Path(__file__).parents[3] / "docs" / "training.md").read_text()
+    for name, t in REGISTRY.items():
+        assert f"| `{name}` |" in docs and t.about in docs, name
