@@ -46,7 +46,7 @@ from protocol.constants import DESIRED_GAP
 from sim_server.world import WorldConfig
 
 __all__ = [
-    "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
+    "CONTROL_PERIOD", "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
     "closing_term", "check_eco_weights",
     "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
 ]  # fmt: skip

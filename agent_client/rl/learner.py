@@ -55,7 +55,7 @@ from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from protocol.constants import A_MIN, DESIRED_GAP, MIN_GAP
 
-__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP"]
+__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP", "TEACHER_55_GENTLE", "TEACHER_MARGIN_GAPS"]
 
 SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
 EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
