@@ -108,4 +108,6 @@ def test_energy_frontier_on_one_episode_and_a_one_point_grid(tmp_path):
     result = run("energy_frontier.py", "--seeds", "200", "--betas", "0.1", "--gammas", "0.5", "--lams", "1", "--out", str(out), timeout=540)
     assert result.returncode == 0, result.stderr
     assert (out / "summary.json").stat().st_size > 0 and (out / "energy-frontier.png").stat().st_size > 0
-    assert "acc" in result.stdout
+    rows = [line.split("  ")[0] for line in result.stdout.splitlines()]
+    assert {"acc", "law beta 0.1 gamma 0.5", "preview lam 1"} <= set(rows)
+    assert "x1.000 of the ACC" in result.stdout
