@@ -45,11 +45,11 @@ from vacc.runs import (
     seed_text,
 )
 from vacc.safety import run_suite
-from vacc.tables import PAPER, build_tables
+from vacc.tables import build_tables
 
 __all__ = [
     "METHODS", "SUITE_METHODS", "LABELS", "OPTIONAL", "HDM_LABEL", "DEFAULT_VEHICLE", "SUITES", "SUITE_SEEDS",
-    "SAFETY_SEEDS", "PAPER", "paper_suite", "safety_suite", "random_suite", "evaluate",
+    "SAFETY_SEEDS", "paper_suite", "safety_suite", "random_suite", "evaluate",
 ]  # fmt: skip
 
 METHODS = ("lead", "ddqn-gap", "ddqn-force", "ddqn-eco", "acc", "human")
