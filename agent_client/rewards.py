@@ -52,8 +52,8 @@ from energy.ev import eq6_power_kw
 from protocol.constants import CONTROL_PERIOD, DESIRED_GAP
 
 __all__ = [
-    "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term", "comfort_term",
-    "closing_term", "check_eco_weights", "EcoTerms", "eco_terms",
+    "CONTROL_PERIOD", "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term",
+    "comfort_term", "closing_term", "check_eco_weights", "EcoTerms", "eco_terms",
     "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
     "gap_reward_terms", "force_reward_terms", "eco_reward_terms", "make_reward_terms", "REWARD_TERMS",
 ]  # fmt: skip

@@ -10,10 +10,13 @@ Depends on numpy only and imports no other package of the project.
 * :mod:`energy.comfort`: the ISO 15622 window tests and acceleration sign changes.
 * :mod:`energy.frontier`: the least eq. 6 energy a follower with preview reaches at a gap error.
 * :mod:`energy.runlog`, :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
+* :func:`write_params`, :func:`data_path`: the fitted parameters in ``energy/data``, for the
+  calibration scripts of ``scripts/``.
 """
 
 from __future__ import annotations
 
+from energy._data import data_path, write_params
 from energy.cmem import AVERAGE_PAPER_ERA, COROLLA_2022, CmemResult, CmemVehicle, cmem_rates
 from energy.cmem import per_mile as cmem_per_mile
 from energy.cycles import CYCLES, Cycle, load_cycle, read_speed_csv
@@ -50,12 +53,14 @@ __all__ = [
     "TraceError",
     "cmem_per_mile",
     "cmem_rates",
+    "data_path",
     "eq6_per_mile",
     "eq6_power_kw",
     "evaluate_run",
     "load_cycle",
     "read_run_log",
     "read_speed_csv",
+    "write_params",
     "vtcpem_per_mile",
     "vtcpem_power_w",
 ]

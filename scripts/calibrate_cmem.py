@@ -1,6 +1,9 @@
 #!/usr/bin/env python
 """Calibrate the 2022 Toyota Corolla's CMEM parameters to its EPA tests.
 
+The question: which fuel and catalyst parameters make the modelled car match what the EPA
+measured of it, and how far is it then off on the cycles it was not fitted to?
+
 Fits two fuel parameters and three catalyst parameters, then prints the result and
 the model's figures on every shipped cycle. With ``--write`` it stores them in
 ``energy/data/corolla_cmem_calibration.csv``, which :mod:`energy.cmem` loads.
@@ -28,8 +31,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from energy import cmem
-from energy._data import data_path, write_params
+from energy import cmem, data_path, write_params
 from energy.cycles import CYCLES, UDDS_BAG2_START_S, Cycle, load_cycle
 from energy.trace import intervals
 

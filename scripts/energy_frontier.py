@@ -63,7 +63,7 @@ from protocol.constants import A_MAX, A_MIN, DESIRED_GAP
 from protocol.force import accel_of_force
 from protocol.scenarios import DEFAULT_SET_SPEED, TEST_TRAJECTORIES
 from sim_server.vehicle import advance_speed
-from vacc.safety import parse_seeds
+from vacc.runs import parse_seeds
 
 BETAS = {"ev": (0.1, 0.2, 0.3, 0.4, 0.5), "ice": (0.1, 0.125, 0.15, 0.2)}
 GAMMAS = {"ev": (1.2, 2.0, 3.0, 4.0), "ice": (0.3, 0.6, 1.0, 2.0)}

@@ -1,6 +1,9 @@
 #!/usr/bin/env python
 """Fit the paper's eq. 6 (nine coefficients) to VT-CPEM over the EPA cycles.
 
+The question: how closely can the paper's EV energy equation stand in for a physical
+model of the Leaf, on the cycles it was fitted to and on one held out?
+
 The paper's coefficients (Qi et al. 2018, Table 4) are not public. This script
 samples the VT-CPEM Nissan Leaf model (:mod:`energy.ev`, P_aux = 700 W) on every
 1 s interval of the EPA UDDS, HWFET and US06 cycles (mean speed, constant
@@ -19,8 +22,7 @@ import argparse
 
 import numpy as np
 
-from energy import ev
-from energy._data import write_params
+from energy import ev, write_params
 from energy.cycles import CYCLES, load_cycle
 from energy.trace import intervals
 

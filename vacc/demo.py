@@ -22,8 +22,8 @@ from agent_client.launcher import local_server
 from agent_client.session import Session
 from energy import evaluate_run
 from protocol.scenarios import TEST_TRAJECTORIES
-from vacc.evaluate import PAPER
 from vacc.paths import MODELS_DEFAULT, models_dir
+from vacc.tables import PAPER
 
 ROWS = (
     ("gap RMSE to 55 m", "gap_rmse_55m_m", "m", "lower"),
@@ -87,7 +87,7 @@ def beside_paper(result: dict[str, dict[str, Any]], scenario: str) -> list[str]:
     paper's figure for each of the paper's methods that ``result`` has.
 
     Args:
-        result: metrics per method, as :func:`vacc.evaluate.build_tables` returns them.
+        result: metrics per method, as :func:`vacc.tables.build_tables` returns them.
     """
     paper = PAPER[scenario]
     columns = [(m, c) for m, c in zip(paper["methods"], paper["columns"], strict=True) if m in result]
@@ -111,10 +111,10 @@ def beside_paper(result: dict[str, dict[str, Any]], scenario: str) -> list[str]:
 def reading(result: dict[str, dict[str, Any]], scenario: str) -> str:
     """One line that reads the table: who follows tightest, who burns the most and the
     least energy, whether the paper agrees, and whose ride is the roughest. Derived from
-    ``result`` and :data:`vacc.evaluate.PAPER` only.
+    ``result`` and :data:`vacc.tables.PAPER` only.
 
     Args:
-        result: metrics per method, as :func:`vacc.evaluate.build_tables` returns them.
+        result: metrics per method, as :func:`vacc.tables.build_tables` returns them.
     """
     energy_name, energy_key, _, gap_key = _paper_rows(scenario)
     unit = energy_name[energy_name.index("(") + 1:-1]

@@ -1,6 +1,6 @@
 """The figures of `vacc evaluate`, paper-ready: one style, PNG and PDF of each.
 
-Every function takes the scored runs of :func:`vacc.evaluate.score_runs` (one per
+Every function takes the scored runs of :func:`vacc.runs.score_runs` (one per
 method, trajectory and seed), writes ``<name>.png`` and ``<name>.pdf`` into the
 output folder and returns a :class:`Written`. A figure with nothing to plot says so
 in words on the page instead of leaving empty axes, and ``Written.empty`` says why.
@@ -32,11 +32,10 @@ from energy.comfort import ISO_JERK_LIMIT_MPS3, ISO_JERK_WINDOW_S, WINDOW_SLACK_
 from energy.metrics import HEADWAY_MIN_SPEED_MPS, TIME_GAP_S
 from protocol.scenarios import TEST_TRAJECTORIES
 from vacc import stats
+from vacc.runs import Run, score_runs
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
-
-    from vacc.evaluate import Run
 
 __all__ = [
     "STYLE", "Written", "plot_runs", "plot_comfort", "plot_emissions", "plot_headway", "plot_pareto", "plot_training",
@@ -305,11 +304,9 @@ def plot_pareto(
     than a dark one.
 
     Args:
-        runs: the scored runs; default: :func:`vacc.evaluate.score_runs` on ``out/logs``.
+        runs: the scored runs; default: :func:`vacc.runs.score_runs` on ``out/logs``.
     """
     if runs is None:
-        from vacc.evaluate import score_runs
-
         runs = score_runs(out, methods, vehicle, settle, seeds)
     plt = _plt()
     energy_key, energy_label = ("fuel_g_per_mi", "fuel [g/mi]") if scenario == "ice" else ("energy_kj_per_mi", "energy [kJ/mi]")

@@ -11,7 +11,7 @@ was trained for (ice-* the ICE car, ev-* the EV); the ACC drives both.
 from __future__ import annotations
 
 import csv
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -22,34 +22,14 @@ from energy import RunLogError, comfort, read_run_log
 from energy.metrics import comfort_metrics
 from protocol.constants import MIN_GAP
 from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, SCENARIOS
+from vacc.runs import Job, drive_jobs
 
-__all__ = ["MIN_GAP", "SPEED_MARGIN", "parse_seeds", "safety_jobs", "score_run", "run_suite", "safety_table"]
+__all__ = ["MIN_GAP", "SPEED_MARGIN", "safety_jobs", "score_run", "run_suite", "safety_table"]
 
 SPEED_MARGIN = 0.5  # [m/s] a passing run stays at or below the set speed plus this
 
 
-def parse_seeds(text: str) -> list[int]:
-    """'0-9' or '0,3,5' (or a mix, '0-2,7') to a sorted list of seeds.
-
-    Raises:
-        ValueError: anything else, or an empty set.
-    """
-    seeds: set[int] = set()
-    for part in (p.strip() for p in text.split(",") if p.strip()):
-        lo, sep, hi = part.partition("-")
-        if not lo.isdigit() or (sep and not hi.isdigit()):
-            raise ValueError(f"{text!r} is not a seed list like 0-9 or 0,3,5")
-        a, b = int(lo), int(hi) if sep else int(lo)
-        if b < a or b - a > 10_000:
-            raise ValueError(f"{part!r} is not an increasing range of at most 10,000 seeds")
-        seeds.update(range(a, b + 1))
-    if not seeds:
-        raise ValueError(f"{text!r} names no seed")
-    return sorted(seeds)
-
-
 def safety_jobs(
-    job_type: Callable[..., Any],
     out: Path,
     models: dict[str, str],
     seeds: Iterable[int],
@@ -58,11 +38,10 @@ def safety_jobs(
     vehicles: Iterable[str] = SCENARIOS,
     acc: bool = True,
     road: Road = DEFAULT_ROAD,
-) -> list[Any]:
+) -> list[Job]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
     Args:
-        job_type: :class:`vacc.evaluate.Job`.
         out: the output folder (logs go to ``out/logs``).
         models: method name ("ice-gap", ...) to checkpoint path; the vehicle is the prefix.
         seeds: episode seeds.
@@ -74,8 +53,8 @@ def safety_jobs(
     """
     drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
-        job_type(method if path is None else "ddqn", trajectory, vehicle, seed,
-                 str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, road)  # fmt: skip
+        Job(method if path is None else "ddqn", trajectory, vehicle, seed,
+            str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, road)  # fmt: skip
         for method, vehicle, path in drivers
         for trajectory in scenarios
         for seed in seeds
@@ -101,7 +80,7 @@ def score_run(log: str | Path, set_speed: float = DEFAULT_SET_SPEED) -> dict[str
     return {"collision": collision, "min_gap_m": min_gap, "max_speed_mps": max_speed, "passed": ok, "unprompted_hard_brakes": brakes}
 
 
-def safety_table(jobs: list[Any], scores: list[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+def safety_table(jobs: list[Job], scores: list[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
     """A markdown pass/fail table (one row per driver and scenario) and its rows."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for job, score in zip(jobs, scores, strict=True):
@@ -147,10 +126,8 @@ def run_suite(
     Returns:
         The markdown table.
     """
-    from vacc.evaluate import Job, drive_jobs
-
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(Job, out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, road=road)
+    work = safety_jobs(out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, road=road)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text(f"# Safety suite{road.note()}\n\n" + table)

@@ -3,6 +3,7 @@ anything; the predictive follower plans as a follower should."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +11,8 @@ from pathlib import Path
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "energy_frontier.py"
+# the checkout's packages first: the script's own folder, not the checkout, is its sys.path[0]
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(SCRIPT.parents[1]), os.environ.get("PYTHONPATH")]))}
 
 
 @pytest.mark.parametrize(
@@ -27,7 +30,7 @@ SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "energy_frontier.py"
 )
 def test_a_bad_grid_is_refused_in_one_line(tmp_path, option, value, why):
     out = tmp_path / "out"
-    result = subprocess.run([sys.executable, str(SCRIPT), "--tests", "--copy", f"{option}={value}", "--out", str(out)], capture_output=True, text=True, timeout=60)
+    result = subprocess.run([sys.executable, str(SCRIPT), "--tests", "--copy", f"{option}={value}", "--out", str(out)], capture_output=True, text=True, timeout=60, env=ENV)
     assert result.returncode == 2
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith(f"energy_frontier.py: error: {option}: ") and why in last
@@ -36,7 +39,7 @@ def test_a_bad_grid_is_refused_in_one_line(tmp_path, option, value, why):
 
 def test_the_predictive_followers_are_refused_for_the_ice_car_in_one_line(tmp_path):
     out = tmp_path / "out"
-    result = subprocess.run([sys.executable, str(SCRIPT), "--scenario", "ice", "--tests", "--mpc", "--out", str(out)], capture_output=True, text=True, timeout=60)
+    result = subprocess.run([sys.executable, str(SCRIPT), "--scenario", "ice", "--tests", "--mpc", "--out", str(out)], capture_output=True, text=True, timeout=60, env=ENV)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1] == "energy_frontier.py: error: --mpc: the predictive followers plan on eq. 6, the EV's energy; use --scenario ev"
     assert not out.exists()

@@ -144,7 +144,7 @@ def _write_log(path, gap: float, v_max: float, flips: bool, phantom: bool = Fals
 
 def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
     """Minima are minima over the runs, the maximum speed a maximum, shares are shown in %."""
-    from vacc.evaluate import build_tables
+    from vacc.tables import build_tables
 
     logs = tmp_path / "logs"
     logs.mkdir()
@@ -184,8 +184,9 @@ def test_bad_settle_is_a_one_line_error(tmp_path, value):
 def test_seeds_give_intervals_and_the_iqm(tmp_path):
     """--seeds 0-1: a log per seed, means with bootstrap intervals equal to the logs' own, the same tables twice."""
     from energy import evaluate_run
-    from vacc.evaluate import LABELS, build_tables
+    from vacc.evaluate import LABELS
     from vacc.stats import iqm
+    from vacc.tables import build_tables
 
     out = tmp_path / "o"
     result = vacc("evaluate", "--out", str(out), "--methods", "lead,acc", "--seeds", "0-1", "--duration", "2", "--jobs", "2", "--settle", "0.5")

@@ -8,7 +8,7 @@ import pytest
 
 from energy import evaluate_run, read_run_log
 from vacc import figures
-from vacc.evaluate import Run, log_path
+from vacc.runs import Run, log_path
 
 METHODS = ["lead", "acc", "human"]
 LABELS = {"lead": "Lead", "acc": "ACC", "human": "HDM"}

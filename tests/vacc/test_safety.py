@@ -12,7 +12,8 @@ import click
 import pytest
 
 from protocol.scenarios import LEAD_SCENARIOS
-from vacc.safety import MIN_GAP, SPEED_MARGIN, parse_seeds, safety_table, score_run
+from vacc.runs import parse_seeds
+from vacc.safety import MIN_GAP, SPEED_MARGIN, safety_table, score_run
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 HEADER = "t,frame,v_host,v_lead,gap,accel,force,collision,a_lead\n"

@@ -1,0 +1,188 @@
+"""The runs of `vacc evaluate`: what to drive (:class:`Job`), driving it, and scoring its logs.
+
+The lowest layer of the evaluation: :mod:`vacc.evaluate` (the command), its suites
+(:mod:`vacc.safety`, :mod:`vacc.random_suite`), :mod:`vacc.tables` and :mod:`vacc.figures`
+import it, and it imports none of them. Each run is a real simulator process and a client
+over UDP. The lead vehicle is driven as a follower's run and then written as its own:
+its logs carry the lead's speed as ``v_host`` and a 55 m placeholder gap.
+"""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import click
+
+from agent_client.launcher import DEFAULT_ROAD, Road
+from agent_client.progress import progress_bar
+from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
+from energy.metrics import Metrics
+from protocol.scenarios import TEST_TRAJECTORIES
+
+__all__ = ["TRAJECTORIES", "Job", "Run", "parse_seeds", "seed_text", "log_path", "run_job", "drive_jobs", "score_runs"]
+
+TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'0-9' or '0,3,5' (or a mix, '0-2,7') to a sorted list of seeds.
+
+    Raises:
+        ValueError: anything else, or an empty set.
+    """
+    seeds: set[int] = set()
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        lo, sep, hi = part.partition("-")
+        if not lo.isdigit() or (sep and not hi.isdigit()):
+            raise ValueError(f"{text!r} is not a seed list like 0-9 or 0,3,5")
+        a, b = int(lo), int(hi) if sep else int(lo)
+        if b < a or b - a > 10_000:
+            raise ValueError(f"{part!r} is not an increasing range of at most 10,000 seeds")
+        seeds.update(range(a, b + 1))
+    if not seeds:
+        raise ValueError(f"{text!r} names no seed")
+    return sorted(seeds)
+
+
+def seed_text(seeds: Sequence[int]) -> str:
+    """Seeds as ranges, the way ``--seeds`` takes them: [0, 1, 2, 5] -> "0-2,5"."""
+    parts: list[str] = []
+    for s in sorted(seeds):
+        if parts and parts[-1].split("-")[-1] == str(s - 1):
+            parts[-1] = f"{parts[-1].split('-')[0]}-{s}"
+        else:
+            parts.append(str(s))
+    return ",".join(parts)
+
+
+def log_path(out: Path, method: str, trajectory: str, seed: int | None = None) -> Path:
+    """Run log of one run: ``logs/<method>-<trajectory>.csv`` when the evaluation has one
+    seed (``seed`` None), ``logs/<method>-<trajectory>-seed<N>.csv`` when it has several."""
+    return out / "logs" / (f"{method}-{trajectory}.csv" if seed is None else f"{method}-{trajectory}-seed{seed}.csv")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One method on one trajectory."""
+
+    method: str
+    trajectory: str
+    scenario: str
+    seed: int
+    log: str
+    duration: float | None
+    checkpoint: str | None = None
+    human_file: str | None = None
+    cold_start: bool = False  # engage a DDQN policy at frame 0, without the camera's pre-roll
+    road: Road = DEFAULT_ROAD  # the server's traffic and sun
+
+
+def _controller(job: Job) -> Any:
+    # imported here: torch and the camera load only in the worker processes that drive
+    from agent_client.controllers import make_controller
+
+    if job.method in ("human", "lead"):
+        if not job.human_file:
+            return make_controller("hdm", seed=job.seed)
+        from agent_client.controllers.human_file import read_human_file
+
+        replay = read_human_file(job.human_file)
+        replay.check(scenario=job.scenario, trajectory=job.trajectory, seed=job.seed)
+        return make_controller("human-file", human_file=replay, pad="hold")
+    # every ddqn-* job has its checkpoint (the suites give it one)
+    return make_controller("ddqn" if job.method.startswith("ddqn") else job.method, checkpoint=job.checkpoint)
+
+
+def run_job(job: Job) -> Job:
+    """Drive one job through its own server process; returns it when its log is written."""
+    # imported here: the parent process that only scores and plots never loads torch
+    import torch
+
+    from agent_client.controllers import camera
+    from agent_client.drive import drive_episode
+    from agent_client.launcher import local_server
+    from agent_client.session import Session
+
+    torch.set_num_threads(1)  # one run per core
+    controller = _controller(job)
+    image, size = camera(controller)
+    log = Path(job.log)
+    if job.method == "lead":
+        log = log.with_name(log.name + ".tmp")
+    with local_server(*job.road.server_args(), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
+        drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
+                      preroll=0 if job.cold_start else None)  # fmt: skip
+    if job.method == "lead":
+        _lead_log(log, Path(job.log))
+        log.unlink()
+    return job
+
+
+def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
+    """Drive every job, ``jobs`` at a time (each in its own process with its own server).
+
+    Raises:
+        click.ClickException: a run failed; the others are cancelled.
+    """
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), label, unit="run") as bar:
+        futures = [pool.submit(run_job, j) for j in work]
+        try:
+            for fut in as_completed(futures):
+                fut.result()
+                bar.update(1)
+        except Exception as exc:
+            for f in futures:
+                f.cancel()
+            raise click.ClickException(f"a run failed: {exc}") from None
+
+
+def _lead_log(follower: Path, out: Path) -> None:
+    # The lead's own run: its speed and acceleration as the "host" of a log.
+    with follower.open() as f, out.open("w", newline="\n") as g:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames is not None
+        g.write(",".join(reader.fieldnames) + "\n")
+        for row in reader:
+            row.update(v_host=row["v_lead"], accel=row["a_lead"], gap="55.0", force="0.0", collision="0")
+            g.write(",".join(row[k] for k in reader.fieldnames) + "\n")
+
+
+class Run(NamedTuple):
+    """One scored run: a method on a trajectory with one seed."""
+
+    method: str
+    trajectory: str
+    seed: int | None
+    """None: the one seed of a single-seed evaluation (its log has no seed in its name)."""
+    log: RunLog
+    metrics: Metrics
+
+
+def score_runs(out: Path, methods: Sequence[str], vehicle: str, settle: float = SETTLE_S, seeds: Sequence[int] | None = None) -> list[Run]:
+    """Read and score every run log of ``out/logs`` that exists (see :func:`log_path`).
+
+    Args:
+        settle: seconds at the start of each run left out of the comfort metrics [s].
+        seeds: the seeds of a multi-seed evaluation; None: one seed.
+
+    Raises:
+        click.ClickException: a log is invalid.
+    """
+    runs = []
+    for method in methods:
+        for traj in TRAJECTORIES:
+            for seed in seeds if seeds is not None else [None]:
+                path = log_path(out, method, traj, seed)
+                if path.exists():
+                    try:
+                        log = read_run_log(path)
+                    except RunLogError as exc:
+                        raise click.ClickException(str(exc)) from None
+                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle)))
+    return runs
