@@ -18,7 +18,7 @@ import sys
 import time
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import click
 import numpy as np
@@ -302,8 +302,34 @@ def _cpu() -> str:
     return platform.processor() or "unknown"
 
 
-def run_bench(quick: bool) -> dict[str, Any]:
-    steps, reps = (500, 3) if quick else (3000, 5)
+class Sizes(NamedTuple):
+    """How much each part of the bench measures: its steps, repetitions and sample counts."""
+
+    name: str
+    steps: int  # lockstep and echo steps per repetition
+    reps: int
+    renders: int
+    new_seeds: int
+    decisions: int
+    replay_capacity: int
+    updates: int
+    train_steps: int
+    learning_starts: int
+    rss_steps: int
+
+
+SIZES = {
+    "full": Sizes("full", 3000, 5, 2000, 20, 2000, 100_000, 30, 6000, 1000, 50_000),
+    "quick": Sizes("quick", 500, 3, 500, 5, 300, 20_000, 10, 600, 200, 1500),
+    # every row once, as small as it runs: the tests' check that each figure is made (its numbers mean little)
+    "smoke": Sizes("smoke", 100, 1, 50, 2, 100, 2_000, 2, 120, 40, 200),
+}
+
+
+def run_bench(size: str) -> dict[str, Any]:
+    """Every figure of the bench at ``size``: a key of :data:`SIZES`."""
+    z = SIZES[size]
+    steps, reps = z.steps, z.reps
     rows: dict[str, Any] = {}
     with progress_bar(12, "bench", unit="part") as bar:
         rows["udp_echo"] = udp_echo(steps, reps)
@@ -315,9 +341,9 @@ def run_bench(quick: bool) -> dict[str, Any]:
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         rows["lockstep_key"] = lockstep_key(steps, reps)
         bar.update(1)
-        rows["render_rgb400"] = render_time(500 if quick else 2000)
-        rows["render_gray200"] = render_time(500 if quick else 2000, (200, 200), gray=True)
-        rows["render_new_seed"] = render_new_seed(5 if quick else 20)
+        rows["render_rgb400"] = render_time(z.renders)
+        rows["render_gray200"] = render_time(z.renders, (200, 200), gray=True)
+        rows["render_new_seed"] = render_new_seed(z.new_seeds)
         bar.update(1)
         rows["agent_env"] = agent_env(max(100, steps // 5), reps)
         bar.update(1)
@@ -326,18 +352,18 @@ def run_bench(quick: bool) -> dict[str, Any]:
         from agent_client.bench import ddqn as ddqn_bench
         from vacc import bench_sb3
 
-        lat = ddqn_bench.decision_latency(repeats=300 if quick else 2000)
+        lat = ddqn_bench.decision_latency(repeats=z.decisions)
         rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}, "forward_ms": lat["forward_median_s"] * 1e3}
-        eco = ddqn_bench.model_decision_latency(models_dir() / ECO_MODEL, repeats=300 if quick else 2000)
+        eco = ddqn_bench.model_decision_latency(models_dir() / ECO_MODEL, repeats=z.decisions)
         rows["eco_decision_latency"] = eco if "error" in eco else {
             "model": eco["model"], "ms": {"median": eco["median_s"] * 1e3, "p90": eco["p90_s"] * 1e3}, "forward_ms": eco["forward_median_s"] * 1e3}
-        peer_lat = bench_sb3.sb3_decision_latency(repeats=300 if quick else 2000)
+        peer_lat = bench_sb3.sb3_decision_latency(repeats=z.decisions)
         rows["sb3_decision_peer"] = peer_lat if "error" in peer_lat else {"ms": {"median": peer_lat["median_s"] * 1e3, "p90": peer_lat["p90_s"] * 1e3}}
-        sample = ddqn_bench.sample_latency(capacity=20_000 if quick else 100_000)
+        sample = ddqn_bench.sample_latency(capacity=z.replay_capacity)
         rows["replay_sample"] = {"ms": {"median": sample["median_s"] * 1e3, "p90": sample["p90_s"] * 1e3}, "capacity": sample["capacity"]}
-        rows["update_cost"] = {"ms": ddqn_bench.update_cost(10 if quick else 30)["median_s"] * 1e3}
+        rows["update_cost"] = {"ms": ddqn_bench.update_cost(z.updates)["median_s"] * 1e3}
         bar.update(1)
-        train_steps, starts = (600, 200) if quick else (6000, 1000)
+        train_steps, starts = z.train_steps, z.learning_starts
         rows["ddqn_training"] = ddqn_bench.training_rate(train_steps, starts, schedule="serial")
         rows["ddqn_training_parallel"] = ddqn_bench.training_rate(train_steps, starts, schedule="parallel")
         bar.update(1)
@@ -345,7 +371,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["replay"] = ddqn_bench.replay_bytes_per_transition()
         rows["sb3_replay_peer"] = bench_sb3.sb3_replay_bytes()
-        rows["training_peak_rss"] = training_peak_rss(1500 if quick else 50_000)
+        rows["training_peak_rss"] = training_peak_rss(z.rss_steps)
         bar.update(1)
     if "error" not in rows["sb3_dqn_peer"]:
         for name in ("ddqn_training", "ddqn_training_parallel"):
@@ -364,7 +390,8 @@ def run_bench(quick: bool) -> dict[str, Any]:
             "date": time.strftime("%Y-%m-%d %H:%M:%S"),
             "cpu": _cpu(),
             "cores": os.cpu_count(),
-            "quick": quick,
+            "quick": z.name != "full",
+            "size": z.name,
             "versions": _versions(),
         },
         "figures": rows,
@@ -375,7 +402,7 @@ def format_table(result: dict[str, Any]) -> str:
     f = result["figures"]
     h = result["header"]
     lines = [
-        f"vacc bench  {h['date']}  {h['cpu']} x{h['cores']}  {'quick' if h['quick'] else 'full'}",
+        f"vacc bench  {h['date']}  {h['cpu']} x{h['cores']}  {h.get('size', 'quick' if h['quick'] else 'full')}",
         "  " + ", ".join(f"{k} {v}" for k, v in h["versions"].items()),
         "",
         f"{'figure':34} {'median':>12} {'min..max / p99':>22}  goal",
@@ -448,11 +475,14 @@ def format_table(result: dict[str, Any]) -> str:
 
 @click.command("bench")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Also write the figures as JSON.")
-@click.option("--quick", is_flag=True, help="Fewer repetitions (under 2 minutes), for CI smoke.")
+@click.option("--quick", is_flag=True, help="Fewer repetitions (under 2 minutes).")
+@click.option("--smoke", is_flag=True, help="Every row once at its smallest: checks that each figure is made; its numbers mean little.")
 @click.option("--long", "long_", is_flag=True, help="Also train ice-gap from scratch to its target (<= 3.4 m on each test trajectory) and time it (about 30-40 min).")
-def bench(json_path: str | None, quick: bool, long_: bool) -> None:
+def bench(json_path: str | None, quick: bool, smoke: bool, long_: bool) -> None:
     """Measure lockstep, rendering, the learner and its peers side by side."""
-    result = run_bench(quick)
+    if quick and smoke:
+        raise click.UsageError("--quick and --smoke are two sizes: give one")
+    result = run_bench("smoke" if smoke else "quick" if quick else "full")
     if long_:
         import tempfile
 

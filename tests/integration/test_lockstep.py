@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from lossy_runs import LOSSY_SECONDS, assert_prefix_of
 from proctools import job
 
 from agent_client.errors import FatalSessionError, SessionError
@@ -46,15 +47,16 @@ def test_packet_loss_duplication_and_reordering_give_identical_log(clean_log, tm
     lossy = tmp_path / "lossy.csv"
     faults = "drop=0.1,dup=0.05,reorder=0.05"
     result = run_vacc(
-        "drive", "--controller", "acc", "--seed", "0", "--log", str(lossy),
+        "drive", "--controller", "acc", "--seed", "0", "--log", str(lossy), "--duration", str(LOSSY_SECONDS),
         "--faults", faults + ",seed=11", "--server-faults", faults + ",seed=12",
         env=dict(os.environ, VACC_SERVER_LOG_LEVEL="info"),  # the spawned server's stats line
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     resent = int(result.stdout.split("re-sent requests")[1].split()[0])
-    assert resent > 200  # the faults really happened
+    assert resent > 50  # the faults really happened (over 200 in the whole 240 s)
     assert "cached_replies=" in result.stderr  # and the server answered repeats from its cache
-    assert lossy.read_bytes() == path.read_bytes()
+    assert len(lossy.read_text().splitlines()) == 1 + round(LOSSY_SECONDS / 0.1) + 1  # header, frames 0..600
+    assert_prefix_of(lossy, path)
 
 
 def test_killed_server_makes_client_exit_nonzero_naming_address(tmp_path):
