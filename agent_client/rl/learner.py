@@ -1,5 +1,9 @@
-"""The one learner of both trainers: networks, optimiser, seeding, the Double-DQN update,
+"""The one learner of both trainers: networks, optimiser, seeding, the gradient step,
 target sync, checkpoint and resume, evaluation.
+
+The gradient step minimises a sum of named loss terms chosen once from the config (the
+Double-DQN TD loss or a teacher's cross-entropy, then the auxiliary heads and the brake
+margin): :mod:`agent_client.rl.losses`, one module per term.
 
 The single-stream loop (:mod:`agent_client.rl.train`) and the K-stream loop
 (:mod:`agent_client.rl.distributed`) only feed it. With the parallel schedule its
@@ -18,15 +22,13 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
-from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.errors import InputFileError
 from agent_client.rewards import CONTROL_PERIOD
@@ -42,21 +44,13 @@ from agent_client.rl.checkpoint import (
 )
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
-from agent_client.rl.network import (
-    Decision,
-    Policy,
-    QNetwork,
-    closing_head_target,
-    closing_speed,
-    gap_head_target,
-    transfer_weights,
-)
+from agent_client.rl.losses import Forward, build_terms, imitation, td, weighted_sum
+from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from agent_client.rl.teachers import teacher_law
-from protocol.constants import A_MIN, MIN_GAP
 
-__all__ = ["Learner", "double_dqn_target", "SESSION_TIMEOUT", "STOP"]
+__all__ = ["Learner", "UpdateLosses", "SESSION_TIMEOUT", "STOP"]
 
 SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session this long
 EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
@@ -90,74 +84,12 @@ def keep_freed_memory() -> None:
         pass
 
 
-def double_dqn_target(
-    returns: torch.Tensor,
-    terminated: torch.Tensor,
-    next_q_online: torch.Tensor,
-    next_q_target: torch.Tensor,
-    discounts: torch.Tensor,
-    terminal_values: torch.Tensor,
-) -> torch.Tensor:
-    """TD target y = G + γ^m Q_target(s', argmax_a Q_online(s', a)), cut at terminations.
+class UpdateLosses(NamedTuple):
+    """What a logged gradient step reports (:meth:`Learner.update`)."""
 
-    The online network picks the next action, the target network scores it.
-    Truncated transitions (time limit) bootstrap like any other; only ``terminated``
-    ones do not: they take ``terminal_values`` instead (0, or the terminal reward
-    forever with :attr:`Config.absorbing_terminal`). One-step: G = r, γ^m = γ.
-
-    Args:
-        returns: ``[B]`` G = Σ_{k<m} γ^k r_k.
-        terminated: ``[B]`` bool, the episode terminated within the m steps.
-        next_q_online: ``[B, A]`` online Q-values of the observations m steps on.
-        next_q_target: ``[B, A]`` target Q-values of the same.
-        discounts: ``[B]`` γ^m.
-        terminal_values: ``[B]`` the value after a termination.
-
-    Returns:
-        ``[B]`` targets.
-    """
-    next_actions = next_q_online.argmax(dim=1, keepdim=True)  # [B, 1]: online net picks
-    next_values = next_q_target.gather(1, next_actions).squeeze(1)  # [B]: target net scores
-    done = terminated.float()  # [B]
-    bootstrap = (1.0 - done) * next_values + done * terminal_values  # [B]
-    return returns + discounts * bootstrap  # [B]
-
-
-# Config.brake_margin: DQfD's margin (Hester et al. 2018: 0.8) by which the full brake must
-# lead every other action in an emergency, and the share of the full brake's deceleration
-# that makes a state one (3.3 m/s^2: about ISO 15622's 3.5 m/s^2 ACC limit, past which the
-# ACC itself would need the driver).
-BRAKE_MARGIN = 0.8
-EMERGENCY_SHARE = 0.6
-
-
-def emergencies(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
-    """``[B]`` bool: the states whose closing speed, (gap - next gap) / ``dt``, needs at least
-    :data:`EMERGENCY_SHARE` of the full brake to stop :data:`MIN_GAP` short of the lead (at
-    the lead's speed; inside MIN_GAP and closing: always). NaN gaps (none stored): never."""
-    closing = closing_speed(gaps, next_gaps, dt)  # [B] m/s, NaN where no gap is stored
-    room = gaps - MIN_GAP
-    need = closing.square() / (2.0 * room.clamp(min=1e-3))
-    hit = (closing > 0.0) & ((room <= 0.0) | (need >= EMERGENCY_SHARE * -A_MIN))
-    return hit & torch.isfinite(closing)
-
-
-def brake_margin_loss(q_all: torch.Tensor, emergency: torch.Tensor) -> torch.Tensor:
-    """DQfD's large-margin loss toward the full brake, max_a [Q(s, a) + l(a)] - Q(s, brake),
-    l = :data:`BRAKE_MARGIN` off the brake and 0 on it, averaged over the ``emergency``
-    states of the batch (0 where there is none): 0 once the brake leads by the margin."""
-    margins = torch.full_like(q_all[0], BRAKE_MARGIN)
-    margins[EMERGENCY_LEVEL] = 0.0
-    gaps = (q_all + margins).max(dim=1).values - q_all[:, EMERGENCY_LEVEL]  # [B] >= 0
-    w = emergency.to(q_all.dtype)
-    return (gaps * w).sum() / w.sum().clamp(min=1.0)
-
-
-def label_weights(cfg: Config) -> torch.Tensor:
-    """The cross-entropy's weight per label: ``cfg.brake_weight`` on the hardest brake, 1 elsewhere."""
-    w = torch.ones(make_action_type(cfg.action).n)
-    w[EMERGENCY_LEVEL] = cfg.brake_weight  # action 0 of every type: the full brake (steps: the hard brake step)
-    return w
+    main: float  # the main term's loss (TD or teacher), without the others
+    taken: float  # the mean output at the stored actions (Q-value, or the label's logit)
+    terms: dict[str, float]  # each other term's own loss (unweighted), by its scalar name
 
 
 def make_teacher(name: str, lag: float = 0.0) -> AccController | LateClosing | None:
@@ -225,6 +157,8 @@ class Learner:
         rng: the numpy generator of replay sampling (and, in the serial schedule, of
             everything the loop draws).
         acting_rng: the loop's generator for episode seeds, ε and random actions.
+        loss_terms: the named terms whose sum each gradient step minimises, main term first
+            (:func:`~agent_client.rl.losses.build_terms`).
         saved: the loop state of the resumed checkpoint ({} for a new run).
         replay_names: the replay files that go with it (then with the last checkpoint written).
 
@@ -261,7 +195,8 @@ class Learner:
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
         self.teacher = PolicyTeacher(cfg) if cfg.teacher == "policy" else make_teacher(cfg.teacher, cfg.teacher_lag)
-        self.label_weights = label_weights(cfg).to(self.device) if cfg.brake_weight != 1.0 else None
+        self.loss_terms = build_terms(cfg, self.q, self.target, self.device)
+        self._taken_name = td.VALUES_NAME if self.teacher is None else imitation.LOGIT_NAME
         self.updates = 0
         self.best_score = math.inf
         self.saved: dict[str, Any] = {}
@@ -360,57 +295,27 @@ class Learner:
 
     # ------------------------------------------------------------------ learning
 
-    def update(self, b: ReplaySamples, log_step: int | None = None) -> tuple[float, float, dict[str, float]] | None:
-        """One gradient step on a replay batch: Double DQN, or with a teacher the
-        cross-entropy of the network's outputs (as logits) to the teacher's labels;
-        logs losses at ``log_step``. With ``cfg.aux_gap`` (``cfg.aux_closing``), the gap
-        (closing) head's Huber loss on the stored gaps is added, times that weight; with
-        ``cfg.brake_margin``, the full brake's large-margin loss in the batch's
-        emergencies (:func:`emergencies`).
+    def update(self, b: ReplaySamples, log_step: int | None = None) -> UpdateLosses | None:
+        """One gradient step on a replay batch: the sum of :attr:`loss_terms`
+        (:func:`~agent_client.rl.losses.weighted_sum`), clipped to ``cfg.max_grad_norm``.
 
         Returns:
-            (the TD or teacher loss without the heads', mean output of the stored actions,
-            each head's loss by its log name) when ``log_step`` is given.
+            The step's losses when ``log_step`` is given (the loop logs them there).
         """
-        cfg, dev = self.cfg, self.device
+        dev = self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
         q_all, gap_raw, closing_raw = self.q.with_heads(frames, speeds, controls)  # [B, A], [B] or None each
         q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
-        if self.teacher is not None:
-            loss = F.cross_entropy(q_all, b.actions.to(dev), weight=self.label_weights)
-        else:
-            loss = F.smooth_l1_loss(q_taken, self._td_target(b))  # Huber
-        head_losses: dict[str, torch.Tensor] = {}
-        total = loss
-        if gap_raw is not None:
-            head_losses["losses/gap_head"] = F.smooth_l1_loss(gap_raw, gap_head_target(b.gaps.to(dev)))
-            total = total + cfg.aux_gap * head_losses["losses/gap_head"]
-        if closing_raw is not None:
-            target = closing_head_target(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)
-            head_losses["losses/closing_head"] = F.smooth_l1_loss(closing_raw, target)
-            total = total + cfg.aux_closing * head_losses["losses/closing_head"]
-        if cfg.brake_margin > 0.0:
-            emergency = emergencies(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)
-            total = total + cfg.brake_margin * brake_margin_loss(q_all, emergency)
+        total, values = weighted_sum(self.loss_terms, Forward(b, dev, q_all, q_taken, gap_raw, closing_raw))
         self.optimizer.zero_grad()
         total.backward()
-        nn.utils.clip_grad_norm_(self.q.parameters(), cfg.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.q.parameters(), self.cfg.max_grad_norm)
         self.optimizer.step()
         self.updates += 1
         if log_step is None:
             return None
-        return loss.item(), q_taken.mean().item(), {name: h.item() for name, h in head_losses.items()}
-
-    @torch.no_grad()
-    def _td_target(self, b: ReplaySamples) -> torch.Tensor:
-        """``[B]`` Double-DQN targets of a batch (n-step returns, the target network)."""
-        cfg, dev = self.cfg, self.device
-        next_frames, next_speeds, next_controls = b.next_frames.to(dev), b.next_speeds.to(dev), b.next_controls.to(dev)
-        next_q_online = self.q(next_frames, next_speeds, next_controls)  # [B, A]
-        next_q_target = self.target(next_frames, next_speeds, next_controls)  # [B, A]
-        # after a termination: the terminal reward forever, r / (1 - γ), or 0
-        terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)  # [B]
-        return double_dqn_target(b.returns.to(dev), b.terminated.to(dev), next_q_online, next_q_target, b.discounts.to(dev), terminal_values)
+        others = {term.name: value.item() for term, value in zip(self.loss_terms[1:], values[1:], strict=True)}
+        return UpdateLosses(values[0].item(), q_taken.mean().item(), others)
 
     def sync_target(self) -> None:
         """Copy the online network into the target network (after any update in flight)."""
@@ -436,13 +341,12 @@ class Learner:
         batch = memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
         self._jobs.append(self._worker.submit(lambda: self._pending(self.update(batch, log_step), log_step)))
 
-    def _pending(self, losses: tuple[float, float, dict[str, float]] | None, step: int | None) -> None:
+    def _pending(self, losses: UpdateLosses | None, step: int | None) -> None:
         if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
-            names = ("losses/teacher_ce", "losses/teacher_logit") if self.teacher is not None else ("losses/td_loss", "losses/q_values")
-            self._pending_scalars += [(names[0], losses[0], step), (names[1], losses[1], step)]
-            self._pending_scalars += [(name, value, step) for name, value in losses[2].items()]
+            self._pending_scalars += [(self.loss_terms[0].name, losses.main, step), (self._taken_name, losses.taken, step)]
+            self._pending_scalars += [(name, value, step) for name, value in losses.terms.items()]
 
-    def _log_losses(self, losses: tuple[float, float, dict[str, float]] | None, step: int | None) -> None:
+    def _log_losses(self, losses: UpdateLosses | None, step: int | None) -> None:
         self._pending(losses, step)
         for name, value, at in self._pending_scalars:
             self.log.add(name, value, at)

@@ -25,14 +25,12 @@ from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
     "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
-    "GAP_HEAD_RANGE", "gap_head_target", "CLOSING_HEAD_RANGE", "closing_head_target", "closing_speed", "batch_of_one", "scale_frames",
-    "ScaledFrames",
+    "GAP_HEAD_SCALE", "CLOSING_HEAD_SCALE", "batch_of_one", "scale_frames", "ScaledFrames",
 ]  # fmt: skip
 
+# The heads' outputs; their targets and losses: agent_client.rl.losses.aux_heads.
 GAP_HEAD_SCALE = 55.0  # [m] the gap head's output is log(gap / this)
-GAP_HEAD_RANGE = (1.0, 150.0)  # [m] the gap head's target is clipped to this: beyond 150 m only "far" matters
 CLOSING_HEAD_SCALE = 5.0  # [m/s] the closing head's output is the closing speed over this
-CLOSING_HEAD_RANGE = 20.0  # [m/s] its target is clipped to +-this (a car cutting in jumps the gap)
 
 
 _FRAME_SCALE = np.float32(255.0)  # scale_frames' divisor, for numpy (float32 division, as torch's)
@@ -42,23 +40,6 @@ def scale_frames(frames: torch.Tensor, out: torch.Tensor | None = None) -> torch
     """uint8 frames as the network's input: float, /255 (in one pass: ``frames.float() / 255.0``
     to the bit), into ``out`` if given."""
     return torch.div(frames, 255.0, out=out)
-
-
-def gap_head_target(gap: torch.Tensor) -> torch.Tensor:
-    """The gap head's training target for gaps [m]: log(clip(gap, 1, 150) / 55)."""
-    return torch.log(gap.clamp(*GAP_HEAD_RANGE) / GAP_HEAD_SCALE)
-
-
-def closing_speed(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
-    """[m/s] (gap - next gap) / ``dt``, from gaps stored one control step apart: positive
-    while the host gains on the lead (NaN where none were stored)."""
-    return (gaps - next_gaps) / dt
-
-
-def closing_head_target(gaps: torch.Tensor, next_gaps: torch.Tensor, dt: float) -> torch.Tensor:
-    """The closing head's training target: :func:`closing_speed`, clipped to +-20 m/s, over 5 m/s."""
-    closing = closing_speed(gaps, next_gaps, dt)
-    return closing.clamp(-CLOSING_HEAD_RANGE, CLOSING_HEAD_RANGE) / CLOSING_HEAD_SCALE
 
 
 class QNetwork(nn.Module):

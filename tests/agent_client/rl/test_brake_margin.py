@@ -10,10 +10,10 @@ import torch
 from agent_client.actions import EMERGENCY_LEVEL
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError, single_stream_only
-from agent_client.rl.learner import (
+from agent_client.rl.learner import Learner
+from agent_client.rl.losses.brake_margin import (
     BRAKE_MARGIN,
     EMERGENCY_SHARE,
-    Learner,
     brake_margin_loss,
     emergencies,
 )

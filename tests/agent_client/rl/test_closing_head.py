@@ -10,7 +10,8 @@ from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.learner import Learner
-from agent_client.rl.network import QNetwork, closing_head_target
+from agent_client.rl.losses.aux_heads import closing_head_target
+from agent_client.rl.network import QNetwork
 from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 

@@ -27,7 +27,7 @@ from agent_client.rl.checkpoint import (
     write_atomically,
 )
 from agent_client.rl.config import Config
-from agent_client.rl.learner import double_dqn_target
+from agent_client.rl.losses.td import double_dqn_target
 from agent_client.rl.network import (
     FORCES,
     QNetwork,

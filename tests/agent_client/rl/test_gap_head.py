@@ -9,7 +9,8 @@ import torch
 from agent_client.preprocess import FRAME_H, FRAME_W
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.learner import Learner
-from agent_client.rl.network import QNetwork, gap_head_target
+from agent_client.rl.losses.aux_heads import gap_head_target
+from agent_client.rl.network import QNetwork
 from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 
