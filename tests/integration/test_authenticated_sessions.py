@@ -1,14 +1,16 @@
-"""Authenticated sessions with a shared key, and no amplification without one (issue #17, item 3).
+"""Keyed sessions, and no amplification without a key (issues #17 item 3, #55 item 1).
 
 A proxy between client and server plays the attacker on the path: it sees every
 datagram both ways, forges observations, spoofs a close with the session's own
-address and token, and replays what it recorded. With ``--key-file`` each is
-rejected before it is even reassembled, counted by reason, and the run log is
-byte-identical to a clean run.
+address and token, replays what it recorded (in the session, into a later session,
+and a hello from a new port) and reflects the client's own datagrams back to it.
+With ``--key-file`` each is rejected before it is even reassembled, counted by
+reason, and the run log is byte-identical to a clean run.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import select
@@ -23,12 +25,13 @@ from agent_client.controllers.acc import AccController
 from agent_client.drive import drive_episode
 from agent_client.session import Session
 from protocol import codec
-from protocol.auth import TRAILER_BYTES, Sealer, load_key
+from protocol.auth import SID_BYTES, TRAILER_BYTES, Channel, load_key, session_keys
 from protocol.fragment import FLAG_MAC, HEADER, HEADER_BYTES, HELLO_BYTES, MAGIC, fragment, pad
-from protocol.messages import PROTOCOL_VERSION, ErrorCode
+from protocol.messages import KEYED_VERSION, PROTOCOL_VERSION, ErrorCode
 from protocol.transport import Endpoint
 
 WRONG_KEY = b"w" * 32
+TRIES = int(os.environ.get("VACC_ATTACK_TRIES", "2"))  # each attack, each try a whole run; 10 for the issue's figures
 
 
 @pytest.fixture
@@ -85,8 +88,15 @@ def plain(msg: dict) -> bytes:
     return fragment(codec.encode(msg), 7)[0]
 
 
-def sealed_with(key: bytes, msg: dict) -> bytes:
-    return Sealer(key).seal(fragment(codec.encode(msg), 7, flags=FLAG_MAC, trailer=TRAILER_BYTES)[0])
+def sealed_with(key: bytes, msg: dict, sid: bytes = bytes(SID_BYTES), *, client: bool = False) -> bytes:
+    """``msg`` sealed as a session datagram with ``key``, naming session ``sid`` (seen on the wire)."""
+    keys = dataclasses.replace(session_keys(key, bytes(16), bytes(16)), token=sid + bytes(16 - SID_BYTES))
+    plain_datagram = fragment(codec.encode(msg), 7, flags=FLAG_MAC, trailer=TRAILER_BYTES, version=KEYED_VERSION)[0]
+    return Channel(keys, client=client).seal(plain_datagram)
+
+
+def sid_of(datagram: bytes) -> bytes:
+    return datagram[HEADER_BYTES : HEADER_BYTES + SID_BYTES]
 
 
 def obs_for(frame: int) -> dict:
@@ -111,13 +121,14 @@ def test_forged_spoofed_and_replayed_datagrams_are_rejected_and_counted(clean_lo
                     token = session.token
                     assert token is not None and proxy.client is not None
                     attack["frame"] = session.frame
+                    sid = sid_of(proxy.down[-1])  # the session id is on the wire
                     # Forged observations of the next frames, unsealed and sealed with a wrong key.
                     forged = [plain(obs_for(f)) for f in range(session.frame, session.frame + 20)]
-                    forged += [sealed_with(WRONG_KEY, obs_for(f)) for f in range(session.frame, session.frame + 20)]
+                    forged += [sealed_with(WRONG_KEY, obs_for(f), sid) for f in range(session.frame, session.frame + 20)]
                     for d in forged:
                         proxy.front.sendto(d, proxy.client)
                     # A close with the session's own token, from the session's own address.
-                    spoofed = [plain({"type": "close", "session": token}), sealed_with(WRONG_KEY, {"type": "close", "session": token})]
+                    spoofed = [plain({"type": "close", "session": token}), sealed_with(WRONG_KEY, {"type": "close", "session": token}, sid, client=True)]
                     for d in spoofed:
                         proxy.back.sendto(d, addr)
                     # Replays of authentic datagrams, both ways.
@@ -164,7 +175,7 @@ def test_takeover_from_a_dead_clients_port_is_refused(spawn, key_file, tmp_path)
         thief.settimeout(0.3)
         try:
             step = {"type": "step", "session": token, "episode": 0, "frame": 1, "action": -1.0}
-            for d in (plain(step), sealed_with(WRONG_KEY, step), plain({"type": "close", "session": token})):
+            for d in (plain(step), sealed_with(WRONG_KEY, step, token[:SID_BYTES], client=True), plain({"type": "close", "session": token})):
                 thief.sendto(d, addr)
             with pytest.raises(TimeoutError):
                 thief.recv(70000)  # never answered
@@ -173,7 +184,7 @@ def test_takeover_from_a_dead_clients_port_is_refused(spawn, key_file, tmp_path)
             probe_sock.bind(("127.0.0.1", 0))
             probe = Endpoint(probe_sock, key=key)
             try:
-                hello = {"type": "hello", "version": PROTOCOL_VERSION, "nonce": b"12345678", "client": "probe", "image_format": "none", "image_width": 0, "image_height": 0, "max_datagram": 65000}  # fmt: skip
+                hello = {"type": "hello", "version": KEYED_VERSION, "nonce": b"12345678", "client": "probe", "image_format": "none", "image_width": 0, "image_height": 0, "max_datagram": 65000}  # fmt: skip
                 probe.send(hello, addr)
                 got = probe.receive(2.0)
                 assert got is not None and got.msg is not None and got.msg["code"] == ErrorCode.BUSY
@@ -249,7 +260,7 @@ def test_no_reply_to_an_unauthenticated_datagram_is_larger_than_it(server):
         "foreign heartbeat": plain({"type": "heartbeat", "session": b"\x09" * 16, "seq": 1}),
         "foreign step": plain({"type": "step", "session": b"\x09" * 16, "episode": 0, "frame": 0, "action": 0.0}),
         "foreign close": plain({"type": "close", "session": b"\x09" * 16}),
-        "sealed, no key here": sealed_with(WRONG_KEY, {"type": "close", "session": b"\x09" * 16}),
+        "sealed, no key here": sealed_with(WRONG_KEY, {"type": "close", "session": b"\x09" * 16}, client=True),
     }
     answered = {}
     for name, datagram in cases.items():
