@@ -274,3 +274,121 @@ def test_no_reply_to_an_unauthenticated_datagram_is_larger_than_it(server):
     # A padded hello is answered with a welcome, which fits in it.
     replies = probe(server, pad(plain(hello), HELLO_BYTES))
     assert codec.decode(replies[0][HEADER_BYTES:])["type"] == "welcome" and len(replies[0]) <= HELLO_BYTES
+
+
+def attacked_run(addr: tuple[str, int], key: bytes, log: Path, attack) -> tuple[Proxy, dict[str, int]]:
+    """One keyed ACC run of test-1 through a proxy; ``attack(proxy, session)`` runs in a
+    thread once the run is under way. Returns the proxy (its records) and the client's
+    rejection counts."""
+    proxy = Proxy(addr)
+    try:
+        with Session(proxy.address, key=key) as session:
+            session.reset(seed=0, duration=0.2)
+
+            def attacker() -> None:
+                deadline = time.monotonic() + 30  # bounded
+                while len(proxy.up) < 200 and time.monotonic() < deadline:
+                    time.sleep(0.005)
+                attack(proxy, session)
+
+            thread = threading.Thread(target=attacker)
+            thread.start()
+            try:
+                drive_episode(session, AccController(), scenario="ice", seed=0, trajectory="test-1", log=log)
+            finally:
+                thread.join()
+            rejected = dict(session.endpoint.rejected)
+    finally:
+        proxy.close()
+    return proxy, rejected
+
+
+def from_new_ports(datagram: bytes, addr: tuple[str, int], n: int, wait: float = 0.0) -> int:
+    """Send ``datagram`` once from each of ``n`` fresh sockets; the datagrams answered within ``wait``."""
+    answered = 0
+    for _ in range(n):
+        answered += len(probe(addr, datagram, wait)) if wait else 0
+        if not wait:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+                sock.sendto(datagram, addr)
+    return answered
+
+
+@pytest.mark.parametrize("kind", ["cross-session replay", "reflection", "hello replay"])
+def test_keyed_session_attacks_leave_the_run_identical(clean_log, spawn, key_file, tmp_path, kind):
+    """The issue's three attacks without the key, each TRIES times against a live keyed session."""
+    clean, _ = clean_log
+    key = load_key(key_file)
+    stderr = tmp_path / "server.err"
+    sent = 0
+    rejected_total: dict[str, int] = {}
+    with spawn("--port", "0", "--key-file", str(key_file), stderr_path=stderr) as (proc, addr):
+        earlier, _ = attacked_run(addr, key, tmp_path / "earlier.csv", lambda proxy, session: None)
+        old_obs = [d for d in earlier.down[-200:] if d[3] & FLAG_MAC][:100]
+        for attempt in range(TRIES):
+            def attack(proxy: Proxy, session: Session) -> None:
+                nonlocal sent
+                if kind == "cross-session replay":
+                    for d in old_obs:  # an earlier session's observations, as if from the server
+                        proxy.front.sendto(d, proxy.client)
+                    sent += len(old_obs)
+                elif kind == "reflection":
+                    own = proxy.up[-50:]  # the client's own steps, sent back to it
+                    for d in own:
+                        proxy.front.sendto(d, proxy.client)
+                    sent += len(own)
+                else:
+                    hellos = [proxy.up[0], earlier.up[0]]  # this session's hello and an earlier one
+                    for d in hellos:
+                        sent += 5
+                        assert from_new_ports(d, addr, 5, wait=0.05) == 0  # not even answered
+
+            log = tmp_path / f"attacked-{attempt}.csv"
+            proxy, rejected = attacked_run(addr, key, log, attack)
+            assert log.read_bytes() == clean.read_bytes(), f"{kind}: try {attempt} changed the run"
+            for k, v in rejected.items():
+                rejected_total[k] = rejected_total.get(k, 0) + v
+        if kind == "hello replay":
+            # After the session closed: a replayed hello still opens nothing, and a real
+            # client is served at once.
+            from_new_ports(proxy.up[0], addr, 20)
+            started = time.monotonic()
+            with Session(addr, key=key) as after:
+                assert after.reset(seed=0)["frame"] == 0
+            assert time.monotonic() - started < 1.0
+    stats = stderr.read_text()
+    print(f"{kind}: {TRIES} tries, {sent} datagrams sent, client rejected {rejected_total}, server: {stats.strip().splitlines()[-1]}")
+    if kind == "cross-session replay":
+        assert rejected_total.get("ForeignSessionError") == sent
+    elif kind == "reflection":
+        assert rejected_total.get("AuthError") == sent
+    else:
+        assert stat(stats, "rejected.hello_replay") == sent + 20
+    sessions = 1 + TRIES + (kind == "hello replay")  # the earlier one, the attacked ones, the one after
+    assert stat(stats, "sessions_opened") == stat(stats, "handshakes") == sessions
+    assert stat(stats, "sessions_closed") == sessions  # every session ended by its own close
+
+
+def test_a_replayed_hello_after_a_restart_holds_no_world(spawn, key_file, tmp_path):
+    """A server that forgot the hello's nonce answers the replay, but the handshake
+    it opens holds nothing: a real client is served at once."""
+    key = load_key(key_file)
+    with spawn("--port", "0", "--key-file", str(key_file)) as (proc, addr):
+        proxy = Proxy(addr)
+        try:
+            with Session(proxy.address, key=key) as s:
+                s.reset(seed=0, duration=0.2)
+            hello = proxy.up[0]
+        finally:
+            proxy.close()
+    stderr = tmp_path / "server.err"
+    with spawn("--port", "0", "--key-file", str(key_file), "--session-timeout", "10", stderr_path=stderr) as (proc, addr):
+        # The first replay gets a welcome nobody can use; the same hello from other ports is known.
+        assert from_new_ports(hello, addr, 3, wait=0.1) == 1
+        started = time.monotonic()
+        with Session(addr, key=key) as real:
+            assert real.reset(seed=0)["frame"] == 0
+        assert time.monotonic() - started < 1.0  # not the 10 s session timeout
+    stats = stderr.read_text()
+    assert stat(stats, "handshakes") == 2 and stat(stats, "sessions_opened") == 1
+    assert stat(stats, "rejected.hello_replay") == 2
