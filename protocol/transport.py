@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from protocol.auth import TRAILER_BYTES, Channel, ClientKeys, ServerKeys
-from protocol.codec import MAX_MESSAGE_BYTES, MAX_OBJECTS, decode, encode
+from protocol.codec import MAX_MESSAGE_BYTES, MAX_OBJECTS, MAX_REQUEST_BYTES, decode, encode
 from protocol.errors import AuthError, LimitError, ProtocolError
 from protocol.faults import FaultConfig, FaultySender
 from protocol.fragment import (
@@ -41,6 +41,10 @@ DECODE_RATE = 4 * MAX_OBJECTS  # [objects/s] one budget (~60 ms of CPU a second)
 DECODE_BURST = 2 * MAX_OBJECTS  # [objects] its bucket: two of the largest messages at once
 MAX_BUDGET_PEERS = 1024  # peers whose budgets are remembered
 OTHERS = "others"  # the one budget every source but the live session's address shares
+# [bytes/s] what every source but the live session's address may make a server read
+# past the socket, together: four of the largest requests a second (bursts of two).
+OTHERS_BYTE_RATE = 4 * MAX_REQUEST_BYTES
+OTHERS_BYTE_BURST = 2 * MAX_REQUEST_BYTES
 
 Address = Any  # (host, port) as the socket module gives it
 
@@ -155,6 +159,7 @@ class Endpoint:
         self.peer = peer
         self.live_peer = live_peer
         self.budget = DecodeBudget()
+        self.others = DecodeBudget(rate=OTHERS_BYTE_RATE, burst=OTHERS_BYTE_BURST, max_peers=1)
         self._sender = FaultySender(sock, faults) if faults and faults.active else None
         self._msg_id = 0
         self.rejected: Counter[str] = Counter()  # reason -> datagrams dropped
@@ -268,6 +273,14 @@ class Endpoint:
         size = len(datagram)
         whole = over_budget = False
         sealer = self.reply_sealer = None
+        if self.peer is None and addr != self.live_peer():
+            # A server: strangers share one byte budget, checked before any work on their
+            # datagrams, so that many of them together cannot starve the live session.
+            try:
+                self.others.charge(OTHERS, size, time.monotonic())
+            except LimitError:
+                self.rejected["others_over_budget"] += 1
+                return Received(addr=None)
 
         def charge(objects: int) -> None:
             nonlocal over_budget
