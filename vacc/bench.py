@@ -374,6 +374,7 @@ def run_bench(quick: bool) -> dict[str, Any]:
         bar.update(1)
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         rows["lockstep_key"] = lockstep_key(steps, reps)
+        rows["flood_rtt"] = flood_rtt(100 if quick else 400)
         bar.update(1)
         rows["render_rgb400"] = render_time(500 if quick else 2000)
         rows["render_gray200"] = render_time(500 if quick else 2000, (200, 200), gray=True)
@@ -453,7 +454,11 @@ def format_table(result: dict[str, Any]) -> str:
     rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
     k = f["lockstep_key"]
     cost = 1e6 * (1 / k["keyed"]["median"] - 1 / k["plain"]["median"])  # [us] per step
-    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step")
+    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step (>= 0.85x)")
+    fl = f.get("flood_rtt")  # absent from the figures of a bench before it
+    if fl is not None:
+        label = f"heartbeat, {fl['sockets']}-socket reset flood"
+        lines.append(f"{label:34} {fl['flood_ms']['median']:>9.3f} ms {fl['ratio']:>21.2f}x  vs {fl['idle_ms']['median']:.3f} ms idle (<= 2x); p99 {fl['flood_ms']['p99']:.1f} ms")
     r = f["agent_env"]["steps_per_s"]
     ratio = f["agent_env"].get("x_highway_env")
     lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))
