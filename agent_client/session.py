@@ -11,9 +11,10 @@ and the last frame. Replies are matched by episode and frame, so stale, duplicat
 or reordered datagrams are ignored.
 
 The socket is connected to the server, so the kernel drops datagrams from anyone
-else; with a shared ``key`` every datagram both ways is sealed and checked
-(:mod:`protocol.auth`), so a forged or replayed reply is dropped and counted in
-``session.endpoint.rejected``.
+else; with a pre-shared ``key`` the handshake derives this session's own keys, one
+per direction, and every datagram both ways is sealed and checked
+(:mod:`protocol.auth`), so a forged, replayed, reflected or other session's reply
+is dropped and counted in ``session.endpoint.rejected``.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ class Session:
         nonce = os.urandom(m.NONCE_BYTES)
         hello = {
             "type": "hello",
-            "version": m.PROTOCOL_VERSION,
+            "version": self.endpoint.version,
             "nonce": nonce,
             "client": self.client_name,
             "image_format": self.image_format,
@@ -181,6 +182,8 @@ class Session:
                 raise FatalSessionError(f"server {self._where()} refused the session: {exc}", exc.code) from None
             busy = exc
             time.sleep(0.1)
+        if self.endpoint.authenticated:
+            self.endpoint.establish(welcome["session"])  # the keys of the answer that carried it
         self.welcome = welcome
         self.token = welcome["session"]
         self._keepalive = threading.Thread(target=self._keep_alive, name="vacc-keepalive", daemon=True)

@@ -15,6 +15,7 @@ __all__ = [
     "VersionError",
     "AuthError",
     "ReplayError",
+    "ForeignSessionError",
     "KeyFileError",
 ]
 
@@ -49,6 +50,10 @@ class AuthError(ValueError, ProtocolError):
 
 class ReplayError(AuthError):
     """An authentic datagram whose sequence number was already seen or is too old."""
+
+
+class ForeignSessionError(AuthError):
+    """A sealed datagram of another session (or none this side knows), or from another address than its session's."""
 
 
 class KeyFileError(ValueError, ProtocolError):

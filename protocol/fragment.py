@@ -4,7 +4,7 @@ Every datagram starts with a 16-byte big-endian header::
 
     magic   2s  b"VC"
     version u8  PROTOCOL_VERSION (a server also takes the older SUPPORTED_VERSIONS)
-    flags   u8  FLAG_MAC | FLAG_PADDED; other bits reserved (0, ignored)
+    flags   u8  FLAG_MAC | FLAG_PADDED | FLAG_HANDSHAKE; other bits reserved (0, ignored)
     msg_id  u32 sender's message counter; fragments of one message share it
     index   u16 this fragment's index, 0..count-1
     count   u16 fragments in the message, 1..MAX_FRAGMENTS
@@ -40,6 +40,7 @@ __all__ = [
     "HELLO_BYTES",
     "FLAG_MAC",
     "FLAG_PADDED",
+    "FLAG_HANDSHAKE",
     "fragment",
     "pad",
     "parse_header",
@@ -54,8 +55,9 @@ MAX_DATAGRAM = 65507  # [bytes] the largest UDP payload over IPv4
 DEFAULT_DATAGRAM = 65000  # [bytes] loopback default; use ~1400 across a real network
 MAX_FRAGMENTS = 65535
 HELLO_BYTES = MIN_DATAGRAM  # [bytes] a client pads its hello to this, so every answer fits in it
-FLAG_MAC = 0x01  # the datagram ends in a sequence number and a MAC (protocol.auth)
+FLAG_MAC = 0x01  # the datagram is sealed with an AEAD (protocol.auth)
 FLAG_PADDED = 0x02  # a single fragment followed by padding to ignore
+FLAG_HANDSHAKE = 0x04  # a keyed hello or its answer: sealed with handshake keys (protocol.auth)
 
 
 def fragment(

@@ -1,4 +1,4 @@
-"""Message schemas of the vacc wire protocol (version 2).
+"""Message schemas of the vacc wire protocol (versions 2 to 6).
 
 Every message is a msgpack map with a ``"type"`` tag. This module is the single
 source of truth for which fields each type carries and of which wire type; the
@@ -18,6 +18,7 @@ from protocol.errors import SchemaError
 
 __all__ = [
     "PROTOCOL_VERSION",
+    "KEYED_VERSION",
     "SUPPORTED_VERSIONS",
     "FIELDS_SINCE",
     "MESSAGE_TYPES",
@@ -36,8 +37,11 @@ __all__ = [
 # 3: welcome gained seed_salt.
 # 4: reset gained preroll: the camera's frames before the controller engages.
 # 5: welcome gained traffic and sun_elevation: the road a client drives on, for its run logs.
-PROTOCOL_VERSION = 5
-# A server also speaks 2 to 4 (cheap: only the welcome and the reset differ), so older clients keep working.
+# 6: keyed sessions: a handshake of fresh nonces from both sides, per-session and
+#    per-direction AEAD keys (protocol.auth). Messages are those of version 5.
+PROTOCOL_VERSION = 5  # what unkeyed datagrams carry: unkeyed traffic is unchanged since 5
+KEYED_VERSION = 6  # the newest version: every version-6 datagram is sealed, and a keyed side speaks only it
+# An unkeyed server also speaks 2 to 4 (cheap: only the welcome and the reset differ), so older clients keep working.
 SUPPORTED_VERSIONS = (2, 3, 4, 5)
 
 # Image formats a client may ask for in the handshake.

@@ -1,10 +1,11 @@
 """Whole messages over one UDP socket: encode, fragment, seal, send; receive, open, reassemble, decode.
 
 What a receiver spends on an untrusted datagram is bounded before it spends it: a
-sealed datagram's MAC is checked first (with a key); fragments wait in a
+sealed datagram is opened first (with a key: :mod:`protocol.auth`); fragments wait in a
 :class:`~protocol.fragment.Reassembler` bounded per peer and per direction; a
 whole message's structure is scanned (:func:`protocol.codec.scan`) and its object
-count charged to its sender's decode budget before msgpack allocates anything.
+count charged to a decode budget before msgpack allocates anything: the live
+session's address has a budget of its own, every other source shares one.
 """
 
 from __future__ import annotations
@@ -13,16 +14,17 @@ import ipaddress
 import socket
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Any
 
-from protocol.auth import TRAILER_BYTES, Sealer
-from protocol.codec import MAX_MESSAGE_BYTES, MAX_OBJECTS, decode, encode
+from protocol.auth import TRAILER_BYTES, Channel, ClientKeys, ServerKeys
+from protocol.codec import MAX_MESSAGE_BYTES, MAX_OBJECTS, MAX_REQUEST_BYTES, decode, encode
 from protocol.errors import AuthError, LimitError, ProtocolError
 from protocol.faults import FaultConfig, FaultySender
 from protocol.fragment import (
     DEFAULT_DATAGRAM,
+    FLAG_HANDSHAKE,
     FLAG_MAC,
     HEADER_BYTES,
     MAX_DATAGRAM,
@@ -30,14 +32,19 @@ from protocol.fragment import (
     fragment,
     pad,
 )
-from protocol.messages import PROTOCOL_VERSION
+from protocol.messages import KEYED_VERSION, PROTOCOL_VERSION
 
 __all__ = ["Endpoint", "Received", "DecodeBudget", "SOCKET_BUFFER_BYTES", "is_loopback"]
 
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024  # [bytes] room for a few full-size images in flight
-DECODE_RATE = 4 * MAX_OBJECTS  # [objects/s] one peer's decode budget (~60 ms of CPU a second)
+DECODE_RATE = 4 * MAX_OBJECTS  # [objects/s] one budget (~60 ms of CPU a second)
 DECODE_BURST = 2 * MAX_OBJECTS  # [objects] its bucket: two of the largest messages at once
 MAX_BUDGET_PEERS = 1024  # peers whose budgets are remembered
+OTHERS = "others"  # the one budget every source but the live session's address shares
+# [bytes/s] what every source but the live session's address may make a server read
+# past the socket, together: four of the largest requests a second (bursts of two).
+OTHERS_BYTE_RATE = 4 * MAX_REQUEST_BYTES
+OTHERS_BYTE_BURST = 2 * MAX_REQUEST_BYTES
 
 Address = Any  # (host, port) as the socket module gives it
 
@@ -73,6 +80,7 @@ class Received:
     size: int = 0
     version: int = PROTOCOL_VERSION
     bad_message: bool = False
+    sealer: Any = None  # with a key: what seals the answer (a session's channel, or a hello's fresh keys)
 
 
 class DecodeBudget:
@@ -111,7 +119,12 @@ class Endpoint:
         max_message: [bytes] largest whole message accepted (a server takes
             requests of at most ``codec.MAX_REQUEST_BYTES``).
         peer: accept datagrams from this address only (a client's server).
-        versions: protocol versions accepted (a server's ``SUPPORTED_VERSIONS``).
+        versions: protocol versions accepted without a key (a server's
+            ``SUPPORTED_VERSIONS``); with one, only ``KEYED_VERSION``.
+        sessions: with a key, the server's side: the channel and address of a
+            session by its sid (None: this is a client).
+        live_peer: the address of the session that holds the world, if any: its
+            messages are charged to a decode budget of their own.
     """
 
     def __init__(
@@ -125,6 +138,8 @@ class Endpoint:
         max_message: int = MAX_MESSAGE_BYTES,
         peer: Address | None = None,
         versions: tuple[int, ...] = (PROTOCOL_VERSION,),
+        sessions: Callable[[bytes], tuple[Channel, Any] | None] | None = None,
+        live_peer: Callable[[], Address | None] = lambda: None,
     ):
         self.sock = sock
         for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
@@ -133,52 +148,84 @@ class Endpoint:
             except OSError:
                 pass  # the OS keeps its own cap; a smaller buffer only means more loss
         self.max_datagram = max_datagram
+        if key is not None:
+            versions = (KEYED_VERSION,)
+        self.version = versions[-1]  # what this side's own messages carry
         self.reassembler = reassembler or Reassembler(max_message=max_message, versions=versions)
-        self.sealer = Sealer(key) if key is not None else None
+        self.keys: ClientKeys | ServerKeys | None = None
+        if key is not None:
+            self.keys = ClientKeys(key) if sessions is None else ServerKeys(key, sessions)
+        self.reply_sealer: Any = None  # a server's: what seals answers to the datagram just received
         self.peer = peer
+        self.live_peer = live_peer
         self.budget = DecodeBudget()
+        self.others = DecodeBudget(rate=OTHERS_BYTE_RATE, burst=OTHERS_BYTE_BURST, max_peers=1)
         self._sender = FaultySender(sock, faults) if faults and faults.active else None
         self._msg_id = 0
         self.rejected: Counter[str] = Counter()  # reason -> datagrams dropped
 
     @property
     def authenticated(self) -> bool:
-        """True when every datagram is sealed with a shared key."""
-        return self.sealer is not None
+        """True when every datagram is sealed (keyed sessions)."""
+        return self.keys is not None
+
+    def establish(self, token: bytes) -> None:
+        """A keyed client: seal with the session whose welcome carried ``token``."""
+        assert isinstance(self.keys, ClientKeys)
+        self.keys.establish(token)
 
     def close(self) -> None:
         """Close the socket; safe to call twice."""
         self.sock.close()
 
-    def pack(self, msg: dict[str, Any], *, pad_to: int = 0, version: int = PROTOCOL_VERSION) -> list[bytes]:
+    def pack(self, msg: dict[str, Any], *, pad_to: int = 0, version: int | None = None) -> list[bytes]:
         """Encode and fragment a message into datagrams, ready to (re)send.
 
         The datagrams are sealed (with a key) only when sent, so that every
         transmission carries a fresh sequence number. ``pad_to`` pads a
         single-fragment message to that many bytes on the wire. Message ids
-        count from 1; a re-send reuses its datagrams, so its id too.
+        count from 1; a re-send reuses its datagrams, so its id too. A keyed
+        client's hello starts a new handshake (a fresh nonce).
         """
         self._msg_id = (self._msg_id + 1) & 0xFFFFFFFF
-        if self.sealer is None:
+        version = self.version if version is None else version
+        if self.keys is None:
             datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, version=version)
         else:
-            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=FLAG_MAC, trailer=TRAILER_BYTES, version=version)
+            flags = FLAG_MAC
+            if isinstance(self.keys, ClientKeys) and msg["type"] == "hello":
+                self.keys.begin()
+                flags |= FLAG_HANDSHAKE
+            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=flags, trailer=TRAILER_BYTES, version=version)
         if pad_to and len(datagrams) == 1:
-            datagrams = [pad(datagrams[0], pad_to - (TRAILER_BYTES if self.sealer else 0))]
+            datagrams = [pad(datagrams[0], pad_to - (TRAILER_BYTES if self.keys else 0))]
         return datagrams
 
     def wire_size(self, datagrams: list[bytes]) -> int:
         """Bytes these datagrams take on the wire, seals included."""
-        return sum(len(d) for d in datagrams) + (TRAILER_BYTES * len(datagrams) if self.sealer else 0)
+        return sum(len(d) for d in datagrams) + (TRAILER_BYTES * len(datagrams) if self.keys else 0)
 
-    def seal(self, datagram: bytes) -> bytes:
-        """The datagram as it goes on the wire: sealed with a fresh sequence number (with a key)."""
-        return datagram if self.sealer is None else self.sealer.seal(datagram)
+    def seal(self, datagram: bytes, sealer: Any = None) -> bytes:
+        """The datagram as it goes on the wire: sealed with a fresh sequence number (with a key).
 
-    def send_datagrams(self, datagrams: list[bytes], addr: Address) -> None:
-        """Send packed datagrams (a fresh reply or a cached one), sealing each."""
-        if self.sealer is not None:
-            datagrams = [self.sealer.seal(d) for d in datagrams]
+        ``sealer`` is a server's choice (a session's channel, a hello's keys);
+        by default a server seals in the channel of the datagram just received.
+        """
+        if self.keys is None:
+            return datagram
+        sealer = sealer or (self.keys if isinstance(self.keys, ClientKeys) else self.reply_sealer)
+        if sealer is None:
+            raise AuthError("nothing to seal an answer with: the request was not sealed")
+        return sealer.seal(datagram)
+
+    def send_datagrams(self, datagrams: list[bytes], addr: Address, sealer: Any = None) -> None:
+        """Send packed datagrams (a fresh reply or a cached one), sealing each (see :meth:`seal`)."""
+        if self.keys is not None:
+            try:
+                datagrams = [self.seal(d, sealer) for d in datagrams]
+            except AuthError:
+                self.rejected["unsealable_answer"] += 1  # never answer what did not open
+                return
         if self._sender is not None:
             for d in datagrams:
                 self._sender.sendto(d, addr)
@@ -189,7 +236,7 @@ class Endpoint:
             except OSError:
                 pass  # a full send buffer is a loss; the peer's retry covers it
 
-    def send(self, msg: dict[str, Any], addr: Address, version: int = PROTOCOL_VERSION) -> list[bytes]:
+    def send(self, msg: dict[str, Any], addr: Address, version: int | None = None) -> list[bytes]:
         """Send one message; returns its datagrams for a reply cache."""
         datagrams = self.pack(msg, version=version)
         self.send_datagrams(datagrams, addr)
@@ -225,16 +272,29 @@ class Endpoint:
             return Received(addr=None)
         size = len(datagram)
         whole = over_budget = False
+        sealer = self.reply_sealer = None
+        if self.peer is None and addr != self.live_peer():
+            # A server: strangers share one byte budget, checked before any work on their
+            # datagrams, so that many of them together cannot starve the live session.
+            try:
+                self.others.charge(OTHERS, size, time.monotonic())
+            except LimitError:
+                self.rejected["others_over_budget"] += 1
+                return Received(addr=None)
 
         def charge(objects: int) -> None:
             nonlocal over_budget
             over_budget = True  # until the budget has paid for it
-            self.budget.charge(addr, objects, now)
+            # The live session is never starved by other sources: they share one budget.
+            self.budget.charge(addr if addr == self.live_peer() else OTHERS, objects, now)
             over_budget = False
 
         try:
-            if self.sealer is not None:
-                datagram = self.sealer.open(datagram, addr)
+            if isinstance(self.keys, ServerKeys):
+                datagram, sealer = self.keys.open(datagram, addr)
+                self.reply_sealer = sealer
+            elif self.keys is not None:
+                datagram = self.keys.open(datagram)
             elif len(datagram) > 3 and datagram[3] & FLAG_MAC:
                 raise AuthError("datagram carries a MAC but this side has no key")
             now = time.monotonic()
@@ -244,7 +304,7 @@ class Endpoint:
             whole, version = True, datagram[2]
             size = max(size, len(payload) + HEADER_BYTES)
             msg = decode(payload, check=charge, version=version)
-            return Received(addr, msg=msg, size=size, version=version)
+            return Received(addr, msg=msg, size=size, version=version, sealer=sealer)
         except ProtocolError as exc:
             self.rejected[type(exc).__name__] += 1
-            return Received(addr, error=exc, size=size, bad_message=whole and not over_budget)
+            return Received(addr, error=exc, size=size, bad_message=whole and not over_budget, sealer=sealer)

@@ -5,10 +5,12 @@ receives and answers with the observation of the new frame. A repeated request
 (the client re-sends after a timeout) is answered from a cache, never simulated
 twice, so lost, duplicated or reordered datagrams cannot change a run.
 
-With a shared key (``--key-file``) every datagram is sealed with a MAC and checked
-against a replay window before it is even reassembled (:mod:`protocol.auth`);
-datagrams that fail are counted and never answered. Without a key, a datagram
-outside the current session is never answered with more bytes than it carried.
+With a pre-shared key (``--key-file``) every datagram is sealed and opened before it
+is even reassembled (:mod:`protocol.auth`): a hello opens a *pending* handshake with
+keys of its own, which becomes the session holding the world only when its first
+request opens under those keys, so a replayed hello holds nothing. Datagrams that
+fail are counted and never answered. Without a key, a datagram outside the current
+session is never answered with more bytes than it carried.
 
 A session ends on ``close``, on its timeout, and when one of its own requests
 (its token, from its address) is answered with a fatal error; nothing else,
@@ -23,13 +25,14 @@ import os
 import socket
 import sys
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from protocol import messages as m
+from protocol.auth import Channel, SessionKeys
 from protocol.codec import MAX_REQUEST_BYTES, MAX_STR_LEN
 from protocol.errors import ProtocolError, VersionError
 from protocol.faults import FaultConfig
@@ -44,6 +47,11 @@ __all__ = ["ServerConfig", "SimServer", "BAD_MESSAGE_RATE"]
 # Answers to malformed messages, per source: never larger than the message, and
 # at most this many a second (bursts as large), so a flood costs few sends.
 BAD_MESSAGE_RATE = 50.0  # [replies/s]
+# Keyed handshakes that have not sent their first request yet hold no world; at most
+# this many wait, each at most this long (a replayed hello costs one entry, briefly).
+HANDSHAKE_TIMEOUT = 2.0  # [s]
+MAX_PENDING = 64
+HELLO_MEMORY = 4096  # client nonces remembered with their address: a hello seen from another address is a replay
 
 @dataclass(frozen=True)
 class ServerConfig:
@@ -78,6 +86,9 @@ class _Session:
     step_reply: list[bytes] = field(default_factory=list)  # reply to step(frame - 1)
     wall_start: float = 0.0  # [s] realtime pacing origin
     renderer: Any = None
+    max_datagram: int = DEFAULT_DATAGRAM  # [bytes] what the server sends this client
+    keys: SessionKeys | None = None  # keyed: what both sides derived from the nonces
+    channel: Channel | None = None  # keyed: the server's seals of this session
 
 
 class SimServer:
@@ -88,11 +99,14 @@ class SimServer:
         sock = socket.socket(socket.AF_INET6 if ":" in config.host else socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind((config.host, config.port))
         self.endpoint = Endpoint(
-            sock, max_datagram=config.max_datagram, faults=config.faults, key=config.key, max_message=MAX_REQUEST_BYTES, versions=m.SUPPORTED_VERSIONS
-        )
+            sock, max_datagram=config.max_datagram, faults=config.faults, key=config.key, max_message=MAX_REQUEST_BYTES,
+            versions=m.SUPPORTED_VERSIONS, sessions=self._lookup, live_peer=self._live_peer,
+        )  # fmt: skip
         self.address = sock.getsockname()[:2]
         self.world = World(config.world, salt=config.seed)
         self.session: _Session | None = None
+        self.pending: OrderedDict[bytes, _Session] = OrderedDict()  # keyed handshakes by sid, oldest first
+        self._hellos: OrderedDict[bytes, Any] = OrderedDict()  # keyed: client nonce -> the address it came from
         self.stats: Counter[str] = Counter()
         self._bad_replies = DecodeBudget(rate=BAD_MESSAGE_RATE, burst=BAD_MESSAGE_RATE)
         self._stopped = False  # set by stop(), even before serve() starts
@@ -143,6 +157,8 @@ class SimServer:
         msg = got.msg
         if msg is None:
             return
+        if isinstance(got.sealer, Channel) and not self._confirm(got.sealer, got.addr):
+            return
         self.stats[f"rx.{msg['type']}"] += 1
         limit = self._reply_limit(msg, got.addr, got.size)
         try:
@@ -157,6 +173,55 @@ class SimServer:
                 self.session = None
                 self.stats["sessions_ended_internal"] += 1
             self._send_error(got.addr, ErrorCode.INTERNAL, repr(exc), limit=limit, version=got.version)
+
+    # -- keyed sessions -------------------------------------------------------
+
+    def _lookup(self, sid: bytes) -> tuple[Channel, Any] | None:
+        """The channel and address of the session or pending handshake ``sid`` names."""
+        s = self.session
+        if s is None or s.channel is None or s.channel.sid != sid:
+            s = self.pending.get(sid)
+        return None if s is None or s.channel is None else (s.channel, s.addr)
+
+    def _live_peer(self) -> Any:
+        return None if self.session is None else self.session.addr
+
+    def _confirm(self, channel: Channel, addr: Any) -> bool:
+        """A request opened under ``channel``: its handshake, if pending, takes the world."""
+        s = self.session
+        if s is not None and s.channel is channel:
+            return True
+        pending = self.pending.pop(channel.sid, None)
+        if pending is None:
+            return False
+        if s is not None:
+            # Another handshake finished first: this one opened nothing.
+            self.stats["rejected.world_held"] += 1
+            self._send_error(addr, ErrorCode.NO_SESSION, "another session took the world first", version=pending.version)
+            return False
+        pending.last_seen = time.monotonic()
+        self.session = pending
+        self.endpoint.max_datagram = pending.max_datagram
+        self.stats["sessions_opened"] += 1
+        return True
+
+    def _keyed_repeat(self, keys: SessionKeys, addr: Any) -> bool:
+        """Whether a keyed hello was seen before: answered again if from its own address
+        (a re-send), dropped and counted if from another (a replay)."""
+        seen = self._hellos.get(keys.nc)
+        if seen is None:
+            self._hellos[keys.nc] = addr
+            if len(self._hellos) > HELLO_MEMORY:
+                self._hellos.popitem(last=False)
+            return False
+        if seen != addr:
+            self.stats["rejected.hello_replay"] += 1
+            return True
+        for s in (self.session, *self.pending.values()):
+            if s is not None and s.keys is not None and s.keys.nc == keys.nc:
+                self.endpoint.send_datagrams(s.welcome, addr, sealer=s.keys)
+                return True
+        return False  # answered before with an error: answer again
 
     # -- requests -------------------------------------------------------------
 
@@ -186,11 +251,10 @@ class SimServer:
                 return
             self._send_error(addr, ErrorCode.BAD_MESSAGE, str(exc), limit=limit, version=got.version)
 
-    @staticmethod
-    def _versions() -> str:
-        return "/".join(map(str, m.SUPPORTED_VERSIONS))
+    def _versions(self) -> str:
+        return "/".join(map(str, self.endpoint.reassembler.versions))
 
-    def _send(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int = m.PROTOCOL_VERSION) -> list[bytes]:
+    def _send(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int | None = None) -> list[bytes]:
         """Send a reply no larger than ``limit`` bytes on the wire (else withhold it)."""
         datagrams = self.endpoint.pack(msg, version=version)
         if limit is not None and self.endpoint.wire_size(datagrams) > limit:
@@ -200,7 +264,7 @@ class SimServer:
         return datagrams
 
     def _send_error(
-        self, addr: Any, code: ErrorCode, detail: str, *, limit: int | None = None, version: int = m.PROTOCOL_VERSION, **where: int | None
+        self, addr: Any, code: ErrorCode, detail: str, *, limit: int | None = None, version: int | None = None, **where: int | None
     ) -> None:
         msg = m.error(code, detail[: MAX_STR_LEN // 4], **where)  # a str of at most 4 bytes a character fits the codec's limit
         if limit is not None and self.endpoint.wire_size(self.endpoint.pack(msg, version=version)) > limit:
@@ -242,8 +306,11 @@ class SimServer:
             self.stats["sessions_closed"] += 1
 
     def _hello(self, msg: dict[str, Any], addr: Any, limit: int | None, version: int) -> None:
+        keys = self.endpoint.reply_sealer  # keyed: the fresh keys of this hello's answer
+        if isinstance(keys, SessionKeys) and self._keyed_repeat(keys, addr):
+            return
         session = self.session
-        if session is not None and session.addr == addr and session.nonce == msg["nonce"]:
+        if keys is None and session is not None and session.addr == addr and session.nonce == msg["nonce"]:
             if limit is None or self.endpoint.wire_size(session.welcome) <= limit:
                 self.endpoint.send_datagrams(session.welcome, addr)  # a repeated hello
             return
@@ -270,7 +337,7 @@ class SimServer:
         if problem:
             self._send_error(addr, ErrorCode.BAD_MESSAGE, problem, limit=limit, version=version)
             return
-        token = os.urandom(m.TOKEN_BYTES)  # a capability, not simulation randomness
+        token = os.urandom(m.TOKEN_BYTES) if keys is None else keys.token  # a capability, not simulation randomness
         max_datagram = min(msg["max_datagram"], self.config.max_datagram)
         cfg = self.config.world
         welcome = {
@@ -295,8 +362,17 @@ class SimServer:
         if limit is not None and self.endpoint.wire_size(datagrams) > limit:
             self._send_error(addr, ErrorCode.BAD_MESSAGE, f"pad the hello to {HELLO_BYTES} bytes", limit=limit, version=version)
             return
-        self.session = _Session(token, addr, version, msg["nonce"], datagrams, fmt, (width, height), time.monotonic())
-        self.stats["sessions_opened"] += 1
+        opened = _Session(token, addr, version, msg["nonce"], datagrams, fmt, (width, height), time.monotonic(), max_datagram=max_datagram)
+        if keys is None:
+            self.session = opened
+            self.stats["sessions_opened"] += 1
+        else:
+            # Keyed: the world is taken by the first request that opens under these keys.
+            opened.keys, opened.channel = keys, Channel(keys, client=False)
+            self.pending[keys.sid] = opened
+            if len(self.pending) > MAX_PENDING:
+                self.pending.popitem(last=False)
+            self.stats["handshakes"] += 1
         self.endpoint.send_datagrams(datagrams, addr)
 
     def _error(self, s: _Session, addr: Any, code: ErrorCode, detail: str, **where: int | None) -> None:
@@ -412,6 +488,12 @@ class SimServer:
         return rgb
 
     def _expire(self, now: float) -> None:
+        while self.pending:
+            sid, p = next(iter(self.pending.items()))
+            if now - p.last_seen <= HANDSHAKE_TIMEOUT:
+                break
+            del self.pending[sid]
+            self.stats["handshakes_expired"] += 1
         s = self.session
         if s is not None and now - s.last_seen > self.config.session_timeout:
             print(f"vacc-server: session of {s.addr} idle for {now - s.last_seen:.1f} s, freed", file=sys.stderr)

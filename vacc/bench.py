@@ -126,6 +126,66 @@ def lockstep_key(steps: int, reps: int) -> dict[str, Any]:
     return {"plain": _reps(rates["plain"]), "keyed": _reps(rates["keyed"]), "ratio": keyed / plain}
 
 
+def reset_flood(host: str, port: int, sockets: int, seconds: float) -> None:
+    """Send valid maximum-size resets (two full float-64 traces, 2.36 MB, a stranger's
+    token) from ``sockets`` sockets in turn for ``seconds``: the decode-budget attack.
+    Run in its own process (``python -c``) so that it does not share the caller's GIL."""
+    from protocol import codec
+    from protocol.fragment import fragment
+
+    n = codec.MAX_ARRAY_LEN
+    reset = {"type": "reset", "session": bytes(16), "episode": 0, "scenario": "ice", "seed": 0, "trajectory": "trace",
+             "trace_t": [float(i) for i in range(n)], "trace_v": [10.0] * n, "duration": None, "host_speed": None,
+             "gap": None, "set_speed": None, "preroll": None}  # fmt: skip
+    datagrams = fragment(codec.encode(reset), 1)
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(sockets)]
+    deadline, msg_id = time.monotonic() + seconds, 1
+    try:
+        while time.monotonic() < deadline:  # bounded in time; each round is one message a socket
+            msg_id += 1
+            for sock in socks:
+                for d in datagrams:
+                    try:
+                        sock.sendto(d[:4] + (msg_id & 0xFFFFFFFF).to_bytes(4, "big") + d[8:], (host, port))
+                    except OSError:
+                        pass  # a full buffer: the kernel drops, as it would on a real flood
+    finally:
+        for sock in socks:
+            sock.close()
+
+
+def flood_rtt(samples: int = 300, sockets: int = 16, addr: tuple[str, int] | None = None) -> dict[str, Any]:
+    """A live session's heartbeat round trip idle and while ``sockets`` sockets flood the
+    server with valid maximum-size resets (its peer is itself, idle, in the same run)."""
+
+    def rtts(s: Session) -> list[float]:
+        out = []
+        for _ in range(samples):
+            t = time.perf_counter()
+            s.heartbeat()
+            out.append(time.perf_counter() - t)
+            time.sleep(0.002)
+        return out
+
+    with contextlib.ExitStack() as stack:
+        addr = addr or stack.enter_context(local_server(stderr=subprocess.DEVNULL))
+        s = stack.enter_context(Session(addr))
+        s.reset(seed=0)
+        rtts(s)  # warm-up
+        idle = rtts(s)
+        seconds = 3.0 + samples * 0.004
+        code = f"from vacc.bench import reset_flood; reset_flood({addr[0]!r}, {addr[1]}, {sockets}, {seconds})"
+        flood = subprocess.Popen([sys.executable, "-c", code])
+        try:
+            time.sleep(1.0)  # let the flood fill the server's queue
+            loaded = rtts(s)
+        finally:
+            flood.kill()
+            flood.wait(timeout=10)
+    i, f = _summary(idle), _summary(loaded)
+    return {"idle_ms": {k: v * 1e3 for k, v in i.items()}, "flood_ms": {k: v * 1e3 for k, v in f.items()}, "sockets": sockets, "ratio": f["median"] / i["median"]}
+
+
 def _env_rate(env: Any, action: int, steps: int, reps: int) -> dict[str, Any]:
     """Steps/s of a Gymnasium env over ``reps`` timed repetitions after a warm-up one."""
     rates = []
@@ -340,6 +400,7 @@ def run_bench(size: str) -> dict[str, Any]:
         bar.update(1)
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         rows["lockstep_key"] = lockstep_key(steps, reps)
+        rows["flood_rtt"] = flood_rtt(100 if quick else 400)
         bar.update(1)
         rows["render_rgb400"] = render_time(z.renders)
         rows["render_gray200"] = render_time(z.renders, (200, 200), gray=True)
@@ -420,7 +481,11 @@ def format_table(result: dict[str, Any]) -> str:
     rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
     k = f["lockstep_key"]
     cost = 1e6 * (1 / k["keyed"]["median"] - 1 / k["plain"]["median"])  # [us] per step
-    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step")
+    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step (>= 0.85x)")
+    fl = f.get("flood_rtt")  # absent from the figures of a bench before it
+    if fl is not None:
+        label = f"heartbeat, {fl['sockets']}-socket reset flood"
+        lines.append(f"{label:34} {fl['flood_ms']['median']:>9.3f} ms {fl['ratio']:>21.2f}x  vs {fl['idle_ms']['median']:.3f} ms idle (<= 2x); p99 {fl['flood_ms']['p99']:.1f} ms")
     r = f["agent_env"]["steps_per_s"]
     ratio = f["agent_env"].get("x_highway_env")
     lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))
