@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import errno
-import os
-from pathlib import Path
-
 __all__ = [
     "ClientError",
     "SessionError",
@@ -14,8 +10,6 @@ __all__ = [
     "ServerLaunchError",
     "InputFileError",
     "OutputFileError",
-    "write_cause",
-    "write_text",
 ]
 
 
@@ -54,36 +48,3 @@ class InputFileError(ValueError, ClientError):
 class OutputFileError(OSError, ClientError):
     """An output file (a log, a checkpoint, a run folder's file) could not be written;
     the message names it and says why, in one line."""
-
-
-# torch.save meets a full disk as a short write and says only this (inline_container.cc)
-TORCH_SHORT_WRITE = "unexpected pos"
-
-
-def write_cause(exc: BaseException) -> str:
-    """Why a write failed, in a few words: "no space left on device" for a full disk
-    (also torch.save's short write), else the system's words for the errno.
-
-    Args:
-        exc: the OSError (or torch's RuntimeError) the write raised.
-    """
-    number = getattr(exc, "errno", None)
-    text = str(exc).strip()
-    if number == errno.ENOSPC or "No space left" in text or TORCH_SHORT_WRITE in text:
-        return "no space left on device"
-    if isinstance(number, int) and number > 0:
-        return os.strerror(number).lower()
-    first = text.splitlines()[0][:200] if text else ""
-    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
-
-
-def write_text(path: str | Path, text: str) -> None:
-    """``Path(path).write_text(text)``.
-
-    Raises:
-        OutputFileError: one line naming the file and the cause (e.g. a full disk).
-    """
-    try:
-        Path(path).write_text(text)
-    except OSError as exc:
-        raise OutputFileError(f"{path}: could not be written: {write_cause(exc)}") from None

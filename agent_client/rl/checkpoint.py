@@ -33,7 +33,8 @@ from typing import Any
 import torch
 import torch.nn as nn
 
-from agent_client.errors import ClientError, InputFileError, OutputFileError, write_cause
+from agent_client.errors import ClientError, InputFileError, OutputFileError
+from agent_client.outputs import write_cause
 from agent_client.rl.config import Config, config_dict, config_from
 from agent_client.rl.network import QNetwork
 

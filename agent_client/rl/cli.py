@@ -23,7 +23,8 @@ from typing import Any
 import click
 
 from agent_client.actions import ACTION_TYPES
-from agent_client.errors import ClientError, InputFileError
+from agent_client.errors import ClientError, InputFileError, OutputFileError
+from agent_client.outputs import unwritable_dir, write_cause, write_text
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
 from agent_client.rl.config import (
@@ -270,6 +271,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         _refuse_resume_changes(click.get_current_context(), cfg, run)
     if not resume and not overwrite and (run / "config.json").exists():
         raise click.UsageError(f"--out {run} already holds a run: add --resume to continue it, or --overwrite to start afresh")
+    if (why := unwritable_dir(run)) is not None:
+        raise click.ClickException(f"--out {run}: cannot be written: {why}")
     old_files = run_files(run) if overwrite else []
     if cfg.init_from is not None and Path(cfg.init_from).resolve() in {p.resolve() for p in old_files}:
         raise click.UsageError(f"--init-from {cfg.init_from} is a file of the run in --out {run}, which --overwrite removes: copy it elsewhere first")
@@ -300,6 +303,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
             summary = run_training(cfg, out, resume=resume, progress=not quiet)
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a run folder's file (scalars.csv, events): one line naming it
+        raise click.ClickException(f"{exc.filename or run}: could not be written: {write_cause(exc)}") from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
     if summary.get("stopped"):
         click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
@@ -310,6 +315,9 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         )
     for r in summary["last_eval"]:
         click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
-    (run / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    try:
+        write_text(run / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    except OutputFileError as exc:
+        raise click.ClickException(str(exc)) from None
     if summary.get("stopped"):
         raise SystemExit(130)  # as a Ctrl-C ends a program, but with the run saved

@@ -28,7 +28,8 @@ from torch.nn.utils import parameters_to_vector
 
 from agent_client.actions import EMERGENCY_LEVEL, make_action_type
 from agent_client.controllers.acc import AccController, LateClosing
-from agent_client.errors import InputFileError, write_text
+from agent_client.errors import InputFileError
+from agent_client.outputs import write_text
 from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
