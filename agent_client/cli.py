@@ -229,6 +229,19 @@ def controller_before_server(
         raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
 
 
+def check_scenario(policy: Any, scenario: str, checkpoint: str | None) -> None:
+    """A model drives only the scenario it was trained for: the other one's leads and
+    vehicle are not what its policy learned, so the run would be silently wrong.
+
+    Raises:
+        click.ClickException: one line naming both scenarios.
+    """
+    trained = getattr(getattr(policy, "cfg", None), "scenario", None)
+    if trained is not None and trained != scenario:
+        raise click.ClickException(f"--checkpoint {checkpoint}: trained for the {trained} scenario, not --scenario {scenario}; "
+                                   f"give --scenario {trained}, or a checkpoint of {scenario}")  # fmt: skip
+
+
 def spawn_args(road: Road, *, server_faults: str | None, realtime: bool, key_file: str | None) -> tuple[list[str], bytes | None]:
     """A spawned server's arguments, and the shared key of ``key_file`` (None without one).
 
@@ -400,6 +413,7 @@ def drive(
         replay = load_replay(human_file, scenario=scenario, trajectory=trajectory, seed=seed, start=start)
         duration = replay.header.duration if duration is None else duration
     policy = controller_before_server(controller, server=server, seed=seed, checkpoint=checkpoint, replay=replay, pad=pad)
+    check_scenario(policy, scenario, checkpoint)
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
     server_args, key = spawn_args(road, server_faults=server_faults, realtime=realtime, key_file=key_file)

@@ -52,8 +52,9 @@ def write_text(path: str | Path, text: str) -> None:
 
 
 def unwritable_file(path: str | Path) -> str | None:
-    """Why ``path`` cannot be written as a file, or None. Leaves nothing behind: an
-    existing file is opened for appending (not changed), a new one created and removed.
+    """Why ``path`` cannot be written as a file (its folder made if missing), or None.
+    Leaves nothing behind: an existing file is opened for appending (not changed), a new
+    one created and removed.
 
     Args:
         path: the file a run will write.
@@ -61,6 +62,8 @@ def unwritable_file(path: str | Path) -> str | None:
     p = Path(path)
     if p.is_dir():
         return "is a folder"
+    if not p.parent.exists():  # made by the run: probe where it will be made
+        return unwritable_dir(p.parent)
     existed = p.exists()
     try:
         with open(p, "ab"):
