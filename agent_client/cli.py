@@ -38,6 +38,7 @@ from agent_client.controllers.keyboard import (
 from agent_client.drive import COLD_START_HELP, DriveSummary, drive_episode
 from agent_client.errors import ClientError, FatalSessionError, SessionError
 from agent_client.launcher import DEFAULT_ROAD, Road, local_server
+from agent_client.outputs import writable_file_option, write_cause
 from agent_client.runlog import COLUMNS, file_sha256, write_card
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
@@ -63,8 +64,10 @@ def parse_hostport(value: str) -> tuple[str, int]:
         click.BadParameter: if it is not of that form.
     """
     host, sep, port = value.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise click.BadParameter(f"{value!r} is not HOST:PORT")
+    if not sep or not host or not port.isdigit():
+        raise click.BadParameter(f"{value!r} is not HOST:PORT", param_hint="--server")
+    if not 0 < int(port) < 65536:
+        raise click.BadParameter(f"{value!r}: port {int(port)} is out of range (1..65535)", param_hint="--server")
     return host.strip("[]"), int(port)
 
 
@@ -226,6 +229,19 @@ def controller_before_server(
         raise click.BadParameter(str(exc), param_hint="--checkpoint") from None
 
 
+def check_scenario(policy: Any, scenario: str, checkpoint: str | None) -> None:
+    """A model drives only the scenario it was trained for: the other one's leads and
+    vehicle are not what its policy learned, so the run would be silently wrong.
+
+    Raises:
+        click.ClickException: one line naming both scenarios.
+    """
+    trained = getattr(getattr(policy, "cfg", None), "scenario", None)
+    if trained is not None and trained != scenario:
+        raise click.ClickException(f"--checkpoint {checkpoint}: trained for the {trained} scenario, not --scenario {scenario}; "
+                                   f"give --scenario {trained}, or a checkpoint of {scenario}")  # fmt: skip
+
+
 def spawn_args(road: Road, *, server_faults: str | None, realtime: bool, key_file: str | None) -> tuple[list[str], bytes | None]:
     """A spawned server's arguments, and the shared key of ``key_file`` (None without one).
 
@@ -302,11 +318,14 @@ def drive_logged(
                 duration=ep.duration, log=Path(log_path), **start, preroll=0 if ep.cold_start else None,
             )  # fmt: skip
     except (FatalSessionError, SessionError) as exc:
-        if card is not None:
-            write_card(log_path, {**card, "end": {"error": str(exc)}})
+        if card is None:  # no session, so no card and no log: name none
+            raise click.ClickException(str(exc)) from None
+        write_card(log_path, {**card, "end": {"error": str(exc)}})
         raise click.ClickException(f"{exc} (log so far: {log_path})") from None
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a log or record write (a full disk): one line naming the file
+        raise click.ClickException(f"{exc.filename or log_path}: could not be written: {write_cause(exc)}") from None
     assert card is not None  # written before the episode
     return card, summary
 
@@ -333,7 +352,7 @@ def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: st
 @click.option("--checkpoint", default=None, type=click.Path(dir_okay=False), help="DDQN checkpoint (--controller ddqn).")
 @click.option("--cold-start", is_flag=True, help=COLD_START_HELP)
 @click.option("--human-file", default=None, type=click.Path(dir_okay=False), help="Recorded forces (--controller human-file).")
-@click.option("--log", "log_path", required=True, type=click.Path(dir_okay=False, writable=True), help="Run log CSV to write.")
+@click.option("--log", "log_path", required=True, type=click.Path(dir_okay=False, writable=True), callback=writable_file_option, help="Run log CSV to write.")
 @click.option("--duration", default=None, type=click.FloatRange(min=0.1), help="Stop after this many simulated seconds.")
 @click.option("--faults", callback=parse_faults, default=None, help="Inject faults on the client's sends, e.g. 'drop=0.1,dup=0.05,reorder=0.05'.")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of the spawned server; with --server, start it with vacc serve --traffic.")
@@ -342,7 +361,7 @@ def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: st
 @click.option("--give-up", default=GIVE_UP, show_default=True, type=click.FloatRange(min=0.1), help="Seconds without a reply before the run fails.")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key of the server (vacc serve --key-file): every datagram carries a MAC.")
 @click.option("--quiet", is_flag=True, help="Print no summary.")
-@click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False, writable=True), help="Also write the forces driven as a human-file (docs/human.md).")
+@click.option("--record", "record_path", default=None, type=click.Path(dir_okay=False, writable=True), callback=writable_file_option, help="Also write the forces driven as a human-file (docs/human.md).")
 @click.option("--pad", default="error", show_default=True, type=click.Choice(PADS), help="--controller human-file: past the file's end, fail, hold the last force, or coast at 0.")
 @click.option("--realtime/--no-realtime", default=None, help="Spawn the server paced to the wall clock. Default: on for --controller keyboard only.")
 @click.option("--joystick", default=0, show_default=True, type=int, help="--controller keyboard: SDL index of the joystick/wheel whose pedals to read, if plugged in; -1: none.")
@@ -394,6 +413,7 @@ def drive(
         replay = load_replay(human_file, scenario=scenario, trajectory=trajectory, seed=seed, start=start)
         duration = replay.header.duration if duration is None else duration
     policy = controller_before_server(controller, server=server, seed=seed, checkpoint=checkpoint, replay=replay, pad=pad)
+    check_scenario(policy, scenario, checkpoint)
     live = controller == "keyboard"
     realtime = live if realtime is None else realtime
     server_args, key = spawn_args(road, server_faults=server_faults, realtime=realtime, key_file=key_file)

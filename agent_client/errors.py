@@ -9,6 +9,7 @@ __all__ = [
     "ServerTimeout",
     "ServerLaunchError",
     "InputFileError",
+    "OutputFileError",
 ]
 
 
@@ -42,3 +43,8 @@ class ServerLaunchError(RuntimeError, ClientError):
 
 class InputFileError(ValueError, ClientError):
     """A user file (trace, human-file, checkpoint) is malformed; the message names file and line."""
+
+
+class OutputFileError(OSError, ClientError):
+    """An output file (a log, a checkpoint, a run folder's file) could not be written;
+    the message names it and says why, in one line."""

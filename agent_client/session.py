@@ -377,6 +377,9 @@ class Session:
                 raise FatalSessionError(f"server {self._where()} speaks another protocol version: {got.error}", m.ErrorCode.BAD_VERSION)
             if now >= deadline:
                 hint = "; check that both sides use the same --key-file" if endpoint.authenticated and self.token is None else ""
+                if self.token is None:  # no session yet: there is no episode or frame to speak of
+                    raise ServerTimeout(f"no reply from server {self._where()} to {what} within {self.give_up:g} s: "
+                                        f"the server was never reached (is one running there?){hint}")  # fmt: skip
                 raise ServerTimeout(
                     f"no reply from server {self._where()} to {what} (episode {self.episode}, "
                     f"last frame {self.frame}) within {self.give_up:g} s{hint}"

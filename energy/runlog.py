@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import csv
 import math
+from array import array
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from energy.errors import RunLogError
+from protocol.numbers import PLAIN_FLOAT
 
 REQUIRED_COLUMNS = ("t", "frame", "v_host", "v_lead", "gap", "accel", "force", "collision")
 """Columns every run log must have."""
@@ -52,7 +55,8 @@ class RunLog:
 
 
 def read_run_log(path: str | Path) -> RunLog:
-    """Read and check a run log CSV.
+    """Read and check a run log CSV, streaming: memory grows by 64 bytes a row, whatever
+    the file holds.
 
     Args:
         path: the CSV file.
@@ -62,8 +66,9 @@ def read_run_log(path: str | Path) -> RunLog:
 
     Raises:
         RunLogError: the file is missing or unreadable, a required column is missing,
-            a value is empty, not a number, NaN or infinite, a speed is negative, time
-            does not strictly increase, force is outside [-1, 1], collision is not
+            a column name repeats, a field is over the CSV field limit, a value is
+            empty, not a plain number (``1_0``), NaN or infinite, a speed is negative,
+            time does not strictly increase, force is outside [-1, 1], collision is not
             0/1, the gap is negative without a collision, there are fewer than two
             rows, or the host covers no distance. The message names the file, the row
             and the problem.
@@ -71,61 +76,92 @@ def read_run_log(path: str | Path) -> RunLog:
     path = Path(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as f:
-            rows = list(csv.reader(f))
+            reader = csv.reader(f)
+            header = _header(path, reader)
+            cols = _read_columns(path, reader, {c: header.index(c) for c in REQUIRED_COLUMNS})
     except FileNotFoundError:
         raise RunLogError(path, None, "file not found") from None
     except (OSError, UnicodeDecodeError) as e:
         raise RunLogError(path, None, f"cannot read file ({e})") from None
-    if not rows:
+    n = len(cols["t"])
+    if n < 2:
+        raise RunLogError(path, None, f"need at least 2 data rows, got {n}")
+    log = RunLog(path=str(path), **{c: np.frombuffer(a, dtype=np.float64) for c, a in cols.items()})  # type: ignore[arg-type]  # no copy
+    if not log.distance_m > 0.0:
+        raise RunLogError(
+            path, None, f"zero distance travelled (v_host is 0 on all {n} rows)"
+        )
+    return log
+
+
+def _header(path: Path, reader: Iterator[list[str]]) -> list[str]:
+    """The header's names, stripped. Raises RunLogError: none, a repeat, a required one missing."""
+    try:
+        first = next(reader, None)
+    except csv.Error as e:
+        raise RunLogError(path, None, f"line 1: not a CSV header ({e})") from None
+    if first is None:
         raise RunLogError(path, None, "empty file (no header)")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in first]
+    if repeated := sorted({h for h in header if header.count(h) > 1}):
+        raise RunLogError(path, None, f"line 1: column(s) {', '.join(repeated)} named twice (header: {','.join(header)})")
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
         raise RunLogError(
             path, None, f"missing column(s) {', '.join(missing)} (header: {','.join(header)})"
         )
-    idx = {c: header.index(c) for c in REQUIRED_COLUMNS}
-    body = [r for r in rows[1:]]
-    if len(body) < 2:
-        raise RunLogError(path, None, f"need at least 2 data rows, got {len(body)}")
+    return header
 
-    cols = {c: np.empty(len(body)) for c in REQUIRED_COLUMNS}
-    for r, row in enumerate(body, start=1):
+
+def _read_columns(path: Path, reader: Iterator[list[str]], idx: dict[str, int]) -> dict[str, array]:
+    """The required columns, row by row, each row checked as it is read.
+
+    Raises:
+        RunLogError: a bad row (see :func:`read_run_log`), naming it.
+    """
+    cols = {c: array("d") for c in REQUIRED_COLUMNS}
+    last: dict[str, float] = {}
+    r = 0
+    while True:
+        try:
+            row = next(reader, None)
+        except csv.Error as e:
+            raise RunLogError(path, r + 1, f"not a CSV row ({e})") from None
+        if row is None:
+            return cols
+        r += 1
+        values = {}
         for c, i in idx.items():
             if i >= len(row) or not row[i].strip():
                 raise RunLogError(path, r, f"column {c!r} is empty")
-            try:
-                x = float(row[i])
-            except ValueError:
-                raise RunLogError(path, r, f"column {c!r} is not a number ({row[i]!r})") from None
+            if PLAIN_FLOAT.fullmatch(row[i]) is None:  # float() would take '1_0'
+                raise RunLogError(path, r, f"column {c!r} is not a number ({row[i]!r})")
+            x = float(row[i])
             if not math.isfinite(x):
                 raise RunLogError(path, r, f"column {c!r} is {row[i].strip()} (must be finite)")
-            cols[c][r - 1] = x
-        _check_row(path, r, cols, r - 1)
-
-    log = RunLog(path=str(path), **cols)  # type: ignore[arg-type]
-    if not log.distance_m > 0.0:
-        raise RunLogError(
-            path, None, f"zero distance travelled (v_host is 0 on all {len(body)} rows)"
-        )
-    return log
+            values[c] = x
+        _check_row(path, r, values, last)
+        for c, x in values.items():
+            cols[c].append(x)
+        last = values
 
 
-def _check_row(path: Path, r: int, cols: dict[str, np.ndarray], i: int) -> None:
+def _check_row(path: Path, r: int, row: dict[str, float], last: dict[str, float]) -> None:
+    """Check data row ``r`` (``last``: the row before it, {} for the first). Raises RunLogError."""
     for c in ("v_host", "v_lead"):
-        if cols[c][i] < 0.0:
-            raise RunLogError(path, r, f"negative speed in column {c!r} ({cols[c][i]} m/s)")
-    if i > 0 and not cols["t"][i] > cols["t"][i - 1]:
+        if row[c] < 0.0:
+            raise RunLogError(path, r, f"negative speed in column {c!r} ({row[c]} m/s)")
+    if last and not row["t"] > last["t"]:
         raise RunLogError(
             path,
             r,
-            f"time not strictly increasing (t = {cols['t'][i - 1]} s, then {cols['t'][i]} s)",
+            f"time not strictly increasing (t = {last['t']} s, then {row['t']} s)",
         )
-    if abs(cols["force"][i]) > 1.0 + FORCE_TOLERANCE:
-        raise RunLogError(path, r, f"force {cols['force'][i]} outside [-1, 1]")
-    if cols["collision"][i] not in (0.0, 1.0):
-        raise RunLogError(path, r, f"collision must be 0 or 1, got {cols['collision'][i]}")
-    if cols["frame"][i] != round(cols["frame"][i]):
-        raise RunLogError(path, r, f"frame must be an integer, got {cols['frame'][i]}")
-    if cols["gap"][i] < 0.0 and cols["collision"][i] == 0.0:
-        raise RunLogError(path, r, f"negative gap {cols['gap'][i]} m without a collision")
+    if abs(row["force"]) > 1.0 + FORCE_TOLERANCE:
+        raise RunLogError(path, r, f"force {row['force']} outside [-1, 1]")
+    if row["collision"] not in (0.0, 1.0):
+        raise RunLogError(path, r, f"collision must be 0 or 1, got {row['collision']}")
+    if row["frame"] != round(row["frame"]):
+        raise RunLogError(path, r, f"frame must be an integer, got {row['frame']}")
+    if row["gap"] < 0.0 and row["collision"] == 0.0:
+        raise RunLogError(path, r, f"negative gap {row['gap']} m without a collision")

@@ -26,6 +26,7 @@ import click
 
 from agent_client.drive import COLD_START_HELP
 from agent_client.launcher import DEFAULT_ROAD, Road
+from agent_client.outputs import writable_dir_option
 from energy import SETTLE_S
 from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.options import SunElevation
@@ -287,7 +288,7 @@ def random_suite(
 
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
-@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for tables, figures and run logs.")
+@click.option("--out", required=True, type=click.Path(file_okay=False), callback=writable_dir_option, help="Folder for tables, figures and run logs.")
 @click.option("--methods", default=None, help="Comma-separated subset of: " + ", ".join(METHODS) + f". Default: all; {', '.join(OPTIONAL)} only where its model is in --models. With --suite safety or random: acc and the models of the chosen kinds (ev-eco.pt and ev-eco-*.pt are ddqn-eco); default: the ACC and every model.")
 @click.option("--models", default=lambda: str(models_dir()), show_default=MODELS_DEFAULT, type=click.Path(file_okay=False), help="Where <scenario>-gap.pt and <scenario>-force.pt are.")
 @click.option("--human-file", "human_files", multiple=True, metavar="TRAJ=PATH", help="Recorded human drive for a trajectory; else the Human Driver Model.")

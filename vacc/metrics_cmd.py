@@ -40,6 +40,21 @@ def card_line(card: dict[str, Any]) -> str:
     )
 
 
+def card_vehicle(card: dict[str, Any] | None, given: str | None) -> str:
+    """The vehicle to score with: ``given`` (--vehicle), else the card's scenario's, else
+    corolla. A given one of the other powertrain than the card's scenario is said in one
+    line on stderr (it still scores: the option overrides)."""
+    from vacc.evaluate import DEFAULT_VEHICLE  # the scenario's vehicle, one source
+
+    scenario = ((card or {}).get("episode") or {}).get("scenario")
+    own = DEFAULT_VEHICLE.get(scenario) if isinstance(scenario, str) else None
+    if given is None:
+        return own or "corolla"
+    if own is not None and (given == "leaf") != (own == "leaf"):
+        click.echo(f"note: --vehicle {given}, but the run's card says the {scenario} scenario (vehicle {own})", err=True)
+    return given
+
+
 def _fmt(value: float | int | str | None) -> str:
     if value is None:
         return "n/a"
@@ -56,9 +71,9 @@ def _fmt(value: float | int | str | None) -> str:
 @click.option(
     "--vehicle",
     type=click.Choice(VEHICLE_NAMES),
-    default="corolla",
-    show_default=True,
-    help="corolla: CMEM calibrated 2022 Corolla; average: paper-era CMEM category; leaf: EV eq. 6.",
+    default=None,
+    help="corolla: CMEM calibrated 2022 Corolla; average: paper-era CMEM category; leaf: EV eq. 6. "
+    "Default: the scenario's on the log's card (ice: corolla, ev: leaf), else corolla.",
 )
 @click.option(
     "--time-gap",
@@ -87,20 +102,25 @@ def _fmt(value: float | int | str | None) -> str:
 )
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def metrics(
-    run_csv: str, vehicle: str, time_gap: float, d_safe: float, settle: float, as_json: bool
+    run_csv: str, vehicle: str | None, time_gap: float, d_safe: float, settle: float, as_json: bool
 ) -> None:
-    """Print gap, safety, comfort and fuel/emission or energy metrics of RUN_CSV."""
+    """Print gap, safety, comfort and fuel/emission or energy metrics of RUN_CSV.
+
+    The vehicle is the scenario's on the log's card (run.csv -> run.card.json);
+    --vehicle overrides it, and one of the other powertrain is said on stderr.
+    """
+    try:
+        card = read_card(run_csv)
+    except InputFileError as e:  # the metrics stand without it
+        click.echo(f"warning: {e}; the run's card is left out", err=True)
+        card = None
+    vehicle = card_vehicle(card, vehicle)
     try:
         result = evaluate_run(
             run_csv, vehicle, time_gap_s=time_gap, d_safe_m=d_safe, settle_s=settle
         )
     except RunLogError as e:
         raise click.ClickException(str(e)) from None
-    try:
-        card = read_card(run_csv)
-    except InputFileError as e:  # the metrics stand without it
-        click.echo(f"warning: {e}; the run's card is left out", err=True)
-        card = None
     if as_json:
         click.echo(json.dumps(json_safe(result), indent=2, allow_nan=False))
         return

@@ -35,6 +35,7 @@ from urllib.parse import quote, unquote
 
 from agent_client.errors import InputFileError
 from protocol.messages import PROTOCOL_VERSION
+from protocol.numbers import plain_float, plain_int
 from protocol.scenarios import DEFAULT_SET_SPEED, TRAJECTORIES
 
 __all__ = [
@@ -60,6 +61,7 @@ PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not stri
 # protocol-1 recording replays the same run below the default 33.5 m/s set speed;
 # 3 to 5 changed only the handshake and the pre-roll, which a recording starts after.
 REPLAYABLE_PROTOCOLS = (1, 2, 3, 4, PROTOCOL_VERSION)
+MAX_DURATION = 86_400.0  # [s] a day: no vacc episode lasts an hour; a longer one is a typo, not a drive
 START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
 
 
@@ -180,17 +182,20 @@ def _parse_header(path: Path, lineno: int, text: str) -> HumanFileHeader:
     if missing:
         raise InputFileError(f"{where}: header lacks {', '.join(missing)}")
     try:
-        seed = int(pairs["seed"])
-        period = float(pairs["control_period"])
-        protocol = int(pairs["protocol"])
+        seed = plain_int(pairs["seed"])
+        period = plain_float(pairs["control_period"])
+        protocol = plain_int(pairs["protocol"])
         dur_text = pairs.get("duration", "none")
-        duration = None if dur_text == "none" else float(dur_text)
+        duration = None if dur_text == "none" else plain_float(dur_text)
     except ValueError as exc:
         raise InputFileError(f"{where}: bad header value: {exc}") from None
     if not (math.isfinite(period) and period > 0):
         raise InputFileError(f"{where}: control_period {period!r} must be > 0 s")
-    if duration is not None and not (math.isfinite(duration) and duration > 0):
-        raise InputFileError(f"{where}: duration {duration!r} must be > 0 s or none")
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DURATION):
+        raise InputFileError(f"{where}: duration {duration!r} must be in (0, {MAX_DURATION:g}] s or none")
+    if protocol not in REPLAYABLE_PROTOCOLS:  # before a server is spawned, naming the line
+        raise InputFileError(f"{where}: recorded with protocol={protocol}, this client speaks protocol {PROTOCOL_VERSION} "
+                             f"and replays {', '.join(map(str, REPLAYABLE_PROTOCOLS))}")  # fmt: skip
     extra = {k: v for k, v in pairs.items() if k not in (*REQUIRED_KEYS, "duration")}
     return HumanFileHeader(pairs["scenario"], pairs["trajectory"], seed, period, protocol, duration, extra)
 
@@ -234,8 +239,8 @@ def read_human_file(path: str | Path) -> HumanFile:
         try:
             if not sep:
                 raise ValueError
-            frame = int(frame_text)
-            force = float(force_text)
+            frame = plain_int(frame_text)
+            force = plain_float(force_text)
         except ValueError:
             raise InputFileError(f"{where}: expected 'frame,force', got {text!r}") from None
         if not (math.isfinite(force) and -1.0 <= force <= 1.0):

@@ -24,7 +24,6 @@ the previous checkpoint is untouched. An interrupted one (a second Ctrl-C) remov
 from __future__ import annotations
 
 import dataclasses
-import errno
 import hashlib
 import math
 import os
@@ -34,7 +33,8 @@ from typing import Any
 import torch
 import torch.nn as nn
 
-from agent_client.errors import ClientError, InputFileError
+from agent_client.errors import ClientError, InputFileError, OutputFileError
+from agent_client.outputs import write_cause
 from agent_client.rl.config import Config, config_dict, config_from
 from agent_client.rl.network import QNetwork
 
@@ -61,7 +61,7 @@ CHECKPOINT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 
 
-class CheckpointWriteError(OSError, ClientError):
+class CheckpointWriteError(OutputFileError):
     """A checkpoint or replay file could not be written (e.g. the disk is full)."""
 
 
@@ -119,9 +119,7 @@ def write_atomically(path: Path, write: Any) -> None:
         _fsync(path.parent)  # and the rename itself
     except (OSError, RuntimeError) as exc:  # torch.save wraps ENOSPC in a RuntimeError
         tmp.unlink(missing_ok=True)
-        full = getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc)
-        cause = "the disk is full" if full else f"{type(exc).__name__}: {str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ''}"
-        raise CheckpointWriteError(f"{path}: could not be written ({cause}); the previous file is kept") from None
+        raise CheckpointWriteError(f"{path}: could not be written: {write_cause(exc)}; the previous file is kept") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

@@ -23,11 +23,13 @@ from typing import Any
 import click
 
 from agent_client.actions import ACTION_TYPES
-from agent_client.errors import ClientError, InputFileError
+from agent_client.errors import ClientError, InputFileError, OutputFileError
+from agent_client.outputs import unwritable_dir, write_cause, write_text
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
 from agent_client.rl.config import (
     DECISIONS,
+    RESUMABLE_CHANGES,
     SCHEDULES,
     TEACHERS,
     Config,
@@ -143,6 +145,7 @@ def _interrupt(signum: int, frame: object) -> None:
     click.echo("\nvacc train: stopping after this step with a checkpoint (Ctrl-C again to abort)", err=True)
 
 
+CONFIG_GIVEN = "vacc.train.config"  # ctx.meta key: --config was given
 RESUME_KEEPS = ("use_ray", "ray_address", "actor_cpus", "max_restarts")  # options not in config.json
 
 # The files a training run writes in its folder, and what --overwrite removes (with their
@@ -166,27 +169,79 @@ def _resume_command(ctx: click.Context, run: Path) -> str:
     return shlex.join(words)
 
 
-def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
-    """--config FILE: a run's config.json gives the defaults; options given override them."""
-    if value is None:
-        return None
+def _config_defaults(ctx: click.Context, path: str | Path, *, refuse: type[click.ClickException] = click.BadParameter) -> None:
+    """A run's config.json becomes the defaults of every Config option.
+
+    Raises:
+        click.ClickException: (``refuse``) the file is missing, not JSON or out of range;
+            one line naming it. Nothing is written.
+    """
     try:
-        saved = json.loads(Path(value).read_text())
-        cfg = config_from(saved, value)
+        saved = json.loads(Path(path).read_text(encoding="utf-8"))
+        if not isinstance(saved, dict):
+            raise ValueError("not a JSON object")
+        cfg = config_from(saved, path)
+    except FileNotFoundError:
+        raise refuse(f"{path}: not found; give the run's settings with --config FILE") from None
     except (OSError, ValueError, InputFileError) as exc:
-        raise click.BadParameter(f"{value}: not a readable config.json ({exc})", param_hint="--config") from None
+        detail = str(exc).splitlines()[0] if str(exc).strip() else type(exc).__name__
+        kw = {"param_hint": "--config"} if refuse is click.BadParameter else {}
+        raise refuse(f"{path}: not a readable config.json ({detail})", **kw) from None
     defaults = {}
     for f in dataclasses.fields(Config):
         v = getattr(cfg, f.name)
         defaults[f.name] = ",".join(map(str, v)) if isinstance(v, tuple) else (str(v) if f.name in CHOICES else v)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
+
+
+def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """--config FILE: a run's config.json gives the defaults; options given override them."""
+    if value is None:
+        return None
+    _config_defaults(ctx, value)
+    ctx.meta[CONFIG_GIVEN] = True
     return value
+
+
+def _resume_defaults(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+    """--out DIR --resume: DIR/config.json gives the defaults (unless --config is given),
+    so that a resume needs no other option. Runs once both are known (both are eager)."""
+    other = "resume" if param.name == "out" else "out"
+    out, resume = (value, ctx.params.get(other)) if param.name == "out" else (ctx.params.get(other), value)
+    if out is not None and resume and not ctx.meta.get(CONFIG_GIVEN) and other in ctx.params:
+        config = Path(out) / "config.json"
+        if not config.exists() and not (Path(out) / "latest.pt").exists():
+            raise click.ClickException(f"--resume: {Path(out)} holds no run (no latest.pt)")
+        _config_defaults(ctx, config, refuse=click.ClickException)
+    return value
+
+
+def _refuse_resume_changes(ctx: click.Context, cfg: Config, run: Path) -> None:
+    """A resume may change only :data:`RESUMABLE_CHANGES`; an option given on the command
+    line that differs from the run's settings (the defaults --out's or --config's
+    config.json gave) would break the bit-exact resume.
+
+    Raises:
+        click.ClickException: one line naming the first such option.
+    """
+    if not ctx.default_map:
+        return
+    saved = make_config({f.name: ctx.default_map[f.name] for f in dataclasses.fields(Config)})
+    for f in dataclasses.fields(Config):
+        if f.name in RESUMABLE_CHANGES or ctx.get_parameter_source(f.name) is not click.ParameterSource.COMMANDLINE:
+            continue
+        if getattr(cfg, f.name) != getattr(saved, f.name):
+            changeable = ", ".join(option_name(n) for n in RESUMABLE_CHANGES)
+            raise click.ClickException(
+                f"--resume: {option_name(f.name)} {ctx.params[f.name]} differs from the run's {ctx.default_map[f.name]}; "
+                f"a resumed run keeps its settings so that it continues bit for bit (only {changeable} may change)"
+            )
 
 
 @click.command("train")
 @click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="A run's config.json: its settings become the defaults.")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
-@click.option("--resume", is_flag=True, help="Continue the run in --out from latest.pt.")
+@click.option("--out", "out", required=True, is_eager=True, callback=_resume_defaults, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
+@click.option("--resume", is_flag=True, is_eager=True, callback=_resume_defaults, help="Continue the run in --out from latest.pt, with its config.json's settings.")
 @click.option("--overwrite", is_flag=True, help="First remove a previous run's files in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @click.option("--ray", "use_ray", is_flag=True, help="Run servers and actors as Ray actors (vacc[ray]).")
@@ -211,9 +266,13 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     if resume and overwrite:
         raise click.UsageError("--resume continues the run in --out, --overwrite removes it: give one of them")
     if resume and not (run / "latest.pt").exists():
-        raise click.UsageError(f"--resume: {run / 'latest.pt'} does not exist")
+        raise click.ClickException(f"--resume: {run / 'latest.pt'} does not exist")
+    if resume:
+        _refuse_resume_changes(click.get_current_context(), cfg, run)
     if not resume and not overwrite and (run / "config.json").exists():
         raise click.UsageError(f"--out {run} already holds a run: add --resume to continue it, or --overwrite to start afresh")
+    if (why := unwritable_dir(run)) is not None:
+        raise click.ClickException(f"--out {run}: cannot be written: {why}")
     old_files = run_files(run) if overwrite else []
     if cfg.init_from is not None and Path(cfg.init_from).resolve() in {p.resolve() for p in old_files}:
         raise click.UsageError(f"--init-from {cfg.init_from} is a file of the run in --out {run}, which --overwrite removes: copy it elsewhere first")
@@ -244,6 +303,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
             summary = run_training(cfg, out, resume=resume, progress=not quiet)
     except ClientError as exc:
         raise click.ClickException(str(exc)) from None
+    except OSError as exc:  # a run folder's file (scalars.csv, events): one line naming it
+        raise click.ClickException(f"{exc.filename or run}: could not be written: {write_cause(exc)}") from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
     if summary.get("stopped"):
         click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
@@ -254,6 +315,9 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         )
     for r in summary["last_eval"]:
         click.echo(f"  {r['trajectory']}: gap RMSE {r['gap_rmse_m']:.3f} m, collision {'yes' if r['collision'] else 'no'}")
-    (run / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    try:
+        write_text(run / "summary.json", json.dumps(summary, indent=2, default=float) + "\n")
+    except OutputFileError as exc:
+        raise click.ClickException(str(exc)) from None
     if summary.get("stopped"):
         raise SystemExit(130)  # as a Ctrl-C ends a program, but with the run saved

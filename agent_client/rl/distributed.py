@@ -807,12 +807,14 @@ def train_distributed(
         raise ValueError(needs[1])
     if use_ray:
         import_ray()  # fail before any work if it is missing
-    learner = Learner(cfg, run_dir, resume=resume, trainer="streams", server_args=server_args, on_eval=on_eval)
+    replay = StreamReplay(cfg.buffer_size, cfg.servers, cfg.frame_stack, cfg.stack_stride)
+
+    def load_replay(learner: Learner) -> None:
+        replay.load(learner.run_dir, learner.replay_names, int(learner.saved.get("global_step", 0)))
+
+    learner = Learner(cfg, run_dir, resume=resume, trainer="streams", server_args=server_args, on_eval=on_eval, load_replay=load_replay)
     pool: _LocalPool | _RayPool | None = None
     try:
-        replay = StreamReplay(cfg.buffer_size, cfg.servers, cfg.frame_stack, cfg.stack_stride)
-        if resume:
-            replay.load(learner.run_dir, learner.replay_names, int(learner.saved.get("global_step", 0)))
         loop = _StreamsLoop(cfg, learner, replay, progress, on_batch)
         n_params = sum(p.numel() for p in learner.q.parameters())
         pool = _RayPool(cfg, server_args, max_restarts, ray_address, actor_cpus) if use_ray else _LocalPool(cfg, server_args, max_restarts, n_params)

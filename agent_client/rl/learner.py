@@ -31,6 +31,7 @@ from torch.nn.utils import parameters_to_vector
 
 from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.errors import InputFileError
+from agent_client.outputs import write_text
 from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
@@ -152,6 +153,8 @@ class Learner:
         trainer: "single" or "streams": which loop's checkpoints this run writes.
         server_args: extra ``python -m sim_server`` arguments for the evaluation server.
         on_eval: called with (step, results) after each evaluation.
+        load_replay: (resume) restores the replay the checkpoint names; called before
+            anything in ``run_dir`` is written, so that a bad file leaves the folder as it was.
 
     Attributes:
         rng: the numpy generator of replay sampling (and, in the serial schedule, of
@@ -167,7 +170,8 @@ class Learner:
     """
 
     def __init__(self, cfg: Config, run_dir: str | Path, *, resume: bool = False, trainer: str = "single",
-                 server_args: tuple[str, ...] = (), on_eval: Callable[[int, list[dict[str, Any]]], None] | None = None):  # fmt: skip
+                 server_args: tuple[str, ...] = (), on_eval: Callable[[int, list[dict[str, Any]]], None] | None = None,
+                 load_replay: Callable[[Learner], None] | None = None):  # fmt: skip
         self.cfg, self.trainer, self.on_eval = cfg, trainer, on_eval
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -201,8 +205,11 @@ class Learner:
         self.best_score = math.inf
         self.saved: dict[str, Any] = {}
         self.replay_names: list[str] = []
-        if resume:
+        if resume:  # every check that can fail, before anything in the run folder is written
             self._resume()
+            if load_replay is not None:
+                load_replay(self)
+            self._check_best()
         else:
             self._init_from()
         if self.parallel:
@@ -216,8 +223,13 @@ class Learner:
             self._worker = None
         self._jobs: list[Future[Any]] = []
         self._pending_scalars: list[tuple[str, float, int]] = []
-        (self.run_dir / "config.json").write_text(json.dumps(config_dict(cfg), indent=2) + "\n")
-        self.log = ScalarLog(self.run_dir, resume_step=self.saved.get("global_step") if resume else None)
+        # The scalar log checks scalars.csv (a resume) before it or config.json is written.
+        self.log = ScalarLog(self.run_dir, resume_step=self.saved.get("global_step") if resume else None, resume_episodes=self.saved.get("episodes"))  # fmt: skip
+        try:
+            write_text(self.run_dir / "config.json", json.dumps(config_dict(cfg), indent=2) + "\n")
+        except BaseException:
+            self.log.close()
+            raise
         self.log.text("config", "```\n" + json.dumps(config_dict(cfg), indent=2) + "\n```")  # markdown in TensorBoard
         self.last_eval: list[dict[str, Any]] = []
         self._eval_env: Any = None
@@ -274,6 +286,19 @@ class Learner:
             raise InputFileError(f"{path}: incomplete training state ({type(exc).__name__}: {exc})") from None
         self.updates = int(self.saved.get("updates", 0))
         self.best_score = float(self.saved.get("best_score", math.inf))
+
+    def _check_best(self) -> None:
+        """A resumed run that has evaluated keeps ``best.pt``: it must read back, or a run
+        that never beats it would end with a broken best.pt.
+
+        Raises:
+            InputFileError: missing or damaged.
+        """
+        if math.isfinite(self.best_score):
+            path = self.run_dir / "best.pt"
+            if not path.is_file():
+                raise InputFileError(f"{path}: not found, but latest.pt's run kept its best evaluation there")
+            read_checkpoint(path)
 
     def _check_resume_config(self, ckpt: dict[str, Any], path: Path) -> None:
         """A resumed run must have the saved run's settings, but for ``RESUMABLE_CHANGES``."""
@@ -411,6 +436,7 @@ class Learner:
             CheckpointWriteError: a write failed; the previous checkpoint still resumes.
         """
         self.wait()
+        self.log.flush()  # the rows up to this step reach the file before latest.pt counts them
         step = int(state["global_step"])
         names = memory.file_names(step) if isinstance(memory, StreamReplay) else [f"replay-{step}.npz"]
         try:

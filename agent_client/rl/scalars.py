@@ -17,40 +17,65 @@ __all__ = ["ScalarLog", "Progress"]
 FLUSH_EVERY_S = 10.0  # [s] scalars.csv reaches the disk at least this often while rows come
 
 
-def _rows_up_to(path: Path, step: int) -> list[list[str]]:
+EPISODE_ROW = "charts/episodic_return"  # one row per finished episode, in both trainers
+
+
+def _rows_up_to(path: Path, step: int, episodes: int | None = None) -> list[list[str]]:
     """The rows of ``scalars.csv`` at or before ``step``. A torn last line (a kill while the
     file was being written) is dropped: it was never a whole row.
 
+    Args:
+        path: the file.
+        step: the resumed checkpoint's step.
+        episodes: the checkpoint's episode count, which must match the episode rows up to
+            ``step`` (a cut or foreign file fails); None: not checked.
+
     Raises:
-        InputFileError: a row that is not ``step,name,value,wall_s`` (one line naming it).
+        InputFileError: a missing file, a row that is not ``step,name,value,wall_s``, or
+            other episodes than the checkpoint's (one line naming the file).
     """
     from agent_client.errors import InputFileError
 
     try:
         text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}); move the file aside to resume") from None
+    except FileNotFoundError:
+        raise InputFileError(f"{path}: not found; latest.pt's run logged its scalars there") from None
+    except (UnicodeDecodeError, OSError) as exc:
+        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__})") from None
+    whole = text[: text.rfind("\n") + 1]
+    if not whole:
+        raise InputFileError(f"{path}: not a scalars CSV (no header line)")
     kept = []
     try:
-        for line, row in enumerate(csv.reader(io.StringIO(text[: text.rfind("\n") + 1], newline="")), start=1):
+        for line, row in enumerate(csv.reader(io.StringIO(whole, newline="")), start=1):
+            if line == 1 and row != ["step", "name", "value", "wall_s"]:
+                raise InputFileError(f"{path}:1: not the header step,name,value,wall_s")
             if line == 1 or not row:
                 continue
             if len(row) != 4 or not row[0].isdigit():
-                raise InputFileError(f"{path}:{line}: not a step,name,value,wall_s row; move the file aside to resume")
+                raise InputFileError(f"{path}:{line}: not a step,name,value,wall_s row")
             if int(row[0]) <= step:
                 kept.append(row)
     except csv.Error as exc:
-        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}); move the file aside to resume") from None
+        raise InputFileError(f"{path}: not a scalars CSV ({type(exc).__name__}: {exc})") from None
+    if episodes is not None and (logged := sum(r[1] == EPISODE_ROW for r in kept)) != episodes:
+        raise InputFileError(f"{path}: {logged} episodes logged up to step {step}, latest.pt counts {episodes}: the file is cut or of another run")
     return kept
 
 
 class ScalarLog:
     """``scalars.csv`` (``step,name,value,wall_s``), plus TensorBoard if installed."""
 
-    def __init__(self, run_dir: Path, resume_step: int | None = None):
+    def __init__(self, run_dir: Path, resume_step: int | None = None, resume_episodes: int | None = None):
+        """Open the log; with ``resume_step``, keep the rows up to it (see :func:`_rows_up_to`,
+        which checks the file before anything is written).
+
+        Raises:
+            InputFileError: (resume) a missing or bad ``scalars.csv``.
+        """
         path = run_dir / "scalars.csv"
-        if resume_step is not None and path.exists():  # drop rows the resumed run will redo
-            kept = _rows_up_to(path, resume_step)
+        if resume_step is not None:  # drop rows the resumed run will redo
+            kept = _rows_up_to(path, resume_step, resume_episodes)
             with open(path, "w", newline="") as f:
                 csv.writer(f).writerows([["step", "name", "value", "wall_s"], *kept])
             self._file = open(path, "a", newline="")

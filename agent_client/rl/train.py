@@ -95,15 +95,18 @@ def train(
 
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
-    learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval)
     memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps)
+
+    def load_replay(learner: Learner) -> None:
+        step = int(learner.saved.get("global_step", 0))
+        replay_path = learner.run_dir / learner.replay_names[0]
+        if memory.load(replay_path) != step:
+            raise InputFileError(f"{replay_path}: saved at a step other than latest.pt's {step}")
+
+    learner = Learner(cfg, run_dir, resume=resume, trainer="single", server_args=server_args, on_eval=on_eval, load_replay=load_replay)
     state = LoopState(**{k: v for k, v in learner.saved.items() if k in LoopState.__dataclass_fields__})
     env = None
     try:
-        if resume:
-            replay_path = learner.run_dir / learner.replay_names[0]
-            if memory.load(replay_path) != state.global_step:
-                raise InputFileError(f"{replay_path}: saved at a step other than latest.pt's {state.global_step}")
         env = VisionACCEnv(
             scenario=cfg.scenario, trajectory=cfg.train_trajectories[0], reward=cfg.reward, frame_stack=cfg.frame_stack,
             stack_stride=cfg.stack_stride, episode_seconds=cfg.episode_seconds, zoom=cfg.zoom,

@@ -121,3 +121,19 @@ def test_csv_encodings_bom_read_utf16_refused_in_one_line(tmp_path):
     with pytest.raises(InputFileError, match="huge.csv") as info:
         load_trace(huge)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(("model", "scenario"), [("ev-gap", "ice"), ("ice-gap", "ev")])
+def test_a_checkpoint_of_the_other_scenario_is_refused_in_one_line(tmp_path, model, scenario):
+    from click.testing import CliRunner
+
+    from vacc.cli import main
+    from vacc.paths import models_dir
+
+    log = tmp_path / "run.csv"
+    result = CliRunner().invoke(main, ["drive", "--controller", "ddqn", "--checkpoint", str(models_dir() / f"{model}.pt"), "--scenario", scenario, "--log", str(log)])
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    [line] = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    trained = model.split("-")[0]
+    assert f"trained for the {trained} scenario, not --scenario {scenario}" in line
+    assert list(tmp_path.iterdir()) == []  # refused before a server or a log

@@ -163,3 +163,37 @@ def test_a_protocol_2_recording_still_replays(tmp_path):
     """Protocol 3 only added welcome.seed_salt: recordings made under protocol 2 replay the same."""
     body = _good().replace("protocol=1", "protocol=2")
     assert read_human_file(_file(tmp_path, body)).header.protocol == 2
+
+
+@pytest.mark.parametrize(
+    ("header_change", "line", "words"),
+    [
+        (("protocol=1", "protocol=99"), 2, "protocol=99"),
+        (("protocol=1", "protocol=0"), 2, "protocol=0"),
+        (("duration=1.0", "duration=1e308"), 2, "duration"),
+        (("duration=1.0", "duration=inf"), 2, "duration"),
+        (("duration=1.0", "duration=nan"), 2, "duration"),
+        (("seed=0", "seed=0_0"), 2, "'0_0'"),
+        (("control_period=0.1", "control_period=0_1"), 2, "'0_1'"),
+    ],
+)
+def test_unknown_protocols_absurd_durations_and_odd_numbers_in_the_header_are_refused_with_the_line(tmp_path, header_change, line, words):
+    path = _file(tmp_path, _good().replace(*header_change))
+    with pytest.raises(InputFileError, match=f"^{path}: line {line}: .*{words}") as info:
+        read_human_file(path)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("row", ["1_0,0.1", "1,0_1", "0x1,0.1", "1,1e0_0"])
+def test_a_frame_or_force_in_another_spelling_than_digits_is_refused_with_the_line(tmp_path, row):
+    body = _good(rows=3).replace("\n1,0.1\n", f"\n{row}\n")
+    path = _file(tmp_path, body)
+    with pytest.raises(InputFileError, match=f"^{path}: line 6: expected 'frame,force'"):
+        read_human_file(path)
+
+
+def test_every_replayable_protocol_still_reads(tmp_path):
+    from agent_client.controllers.human_file import REPLAYABLE_PROTOCOLS
+
+    for version in REPLAYABLE_PROTOCOLS:
+        assert read_human_file(_file(tmp_path, _good().replace("protocol=1", f"protocol={version}"))).header.protocol == version

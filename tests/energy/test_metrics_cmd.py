@@ -112,3 +112,40 @@ def test_bad_options_are_one_line_errors(
     assert res.exit_code == 2 and isinstance(res.exception, SystemExit)
     assert f"Invalid value for '{option}': must be a finite number >= 0, got" in res.output
     assert "{" not in res.output  # no JSON printed
+
+
+def _with_card(path: Path, scenario: str) -> None:
+    from agent_client.runlog import write_card
+
+    write_card(path, {"episode": {"scenario": scenario, "trajectory": "test-1", "seed": 0}})
+
+
+def test_the_vehicle_comes_from_the_cards_scenario_and_vehicle_overrides_it(write_log: Callable[..., Path]) -> None:
+    path = write_log(make_log_rows(v=20.0, gap=50.0))
+    runner = CliRunner()
+    assert json.loads(runner.invoke(metrics, [str(path), "--json"]).output)["vehicle"] == "corolla"  # no card: as before
+    _with_card(path, "ev")
+    ev = runner.invoke(metrics, [str(path), "--json"])
+    assert ev.exit_code == 0 and json.loads(ev.stdout)["vehicle"] == "leaf" and "energy_kj_per_mi" in json.loads(ev.stdout)
+    forced = runner.invoke(metrics, [str(path), "--json", "--vehicle", "corolla"])
+    assert json.loads(forced.stdout)["vehicle"] == "corolla"  # the option overrides...
+    [note] = [ln for ln in forced.stderr.splitlines() if ln.strip()]  # ...and says so, in one line
+    assert "--vehicle corolla" in note and "ev scenario" in note and "leaf" in note
+    _with_card(path, "ice")
+    assert json.loads(runner.invoke(metrics, [str(path), "--json"]).stdout)["vehicle"] == "corolla"
+    same = runner.invoke(metrics, [str(path), "--json", "--vehicle", "average"])  # another ICE model: no mismatch
+    assert json.loads(same.stdout)["vehicle"] == "average" and same.stderr == ""
+
+
+def test_a_field_over_the_csv_limit_is_one_line_not_a_traceback(tmp_path: Path) -> None:
+    import csv
+
+    path = tmp_path / "run.csv"
+    rows = [f"{i * 0.1:.1f},{i},20,20,50,0,0,0," for i in range(5)]
+    rows[3] += "y" * (csv.field_size_limit() + 1)
+    path.write_text(",".join(COLUMNS) + ",note\n" + "\n".join(rows) + "\n")
+    result = CliRunner().invoke(metrics, [str(path)])
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    assert [ln for ln in result.output.splitlines() if ln.strip()] == [
+        f"Error: {path}, row 4 (line 5): not a CSV row (field larger than field limit ({csv.field_size_limit()}))"
+    ]

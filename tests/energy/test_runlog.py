@@ -101,3 +101,49 @@ def test_missing_and_empty_file(tmp_path: Path) -> None:
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(RunLogError, match=r"empty\.csv: empty file"):
         read_run_log(tmp_path / "empty.csv")
+
+
+@pytest.mark.parametrize("text", ["1_0", "0x10", "1e1_0", "١٠"])
+def test_a_number_in_another_spelling_than_digits_is_refused_with_its_row(write_log: Callable[..., Path], text: str) -> None:
+    path = write_log(_bad(make_log_rows(n=5), 3, "frame", text))
+    with pytest.raises(RunLogError, match=r"row 3 \(line 4\): column 'frame' is not a number"):
+        read_run_log(path)
+
+
+def test_a_repeated_column_name_is_refused_with_the_header_line(tmp_path: Path) -> None:
+    path = tmp_path / "dup.csv"
+    rows = [f"{i * 0.1:.1f},{i},20,20,50,0,0,0,45" for i in range(3)]
+    path.write_text("t,frame,v_host,v_lead,gap,accel,force,collision,gap\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RunLogError, match=r"dup.csv: line 1: column\(s\) gap named twice"):
+        read_run_log(path)
+
+
+def test_a_field_over_the_csv_limit_is_one_line_with_its_row(tmp_path: Path) -> None:
+    import csv
+
+    path = tmp_path / "big.csv"
+    rows = [f"{i * 0.1:.1f},{i},20,20,50,0,0,0" for i in range(4)]
+    rows[2] += ',"' + "x" * (csv.field_size_limit() + 10) + '"'
+    path.write_text(",".join(COLUMNS) + ",note\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RunLogError, match=r"big.csv, row 3 \(line 4\): not a CSV row \(field larger than field limit") as info:
+        read_run_log(path)
+    assert "\n" not in str(info.value)
+
+
+def test_a_long_log_is_read_in_bounded_memory(tmp_path: Path) -> None:
+    """Streaming: the columns grow by 64 bytes a row; the text is never held whole."""
+    import tracemalloc
+
+    n = 50_000
+    path = tmp_path / "long.csv"
+    with path.open("w") as f:
+        f.write(",".join(COLUMNS) + ",note\n")
+        f.writelines(f"{i * 0.1:.1f},{i},20.0,20.0,50.0,0.0,0.0,0,{'n' * 40}\n" for i in range(n))
+    tracemalloc.start()
+    try:
+        log = read_run_log(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert log.t.size == n
+    assert peak < 100 * n, peak  # [bytes] 8 float64 columns = 64 a row; the rows as text held ~1 kB a row
