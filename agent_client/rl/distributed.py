@@ -825,23 +825,7 @@ def train_distributed(
                 pool.close()
         finally:
             learner.close()
-    t0, s0 = loop.first_batch if loop.first_batch is not None else (t_end, loop.step)
-    return {
-        "steps": loop.step,
-        "updates": learner.updates,
-        "episodes": loop.episodes,
-        "best_score": learner.best_score,
-        "last_eval": learner.last_eval,
-        "wall_s": t_end - loop.t_start,
-        "env_steps_per_s": (loop.step - s0) / max(t_end - t0, 1e-9),
-        "servers": cfg.servers,
-        "backend": "ray" if use_ray else "local",
-        "transitions_by_actor": list(loop.transitions_by_actor),
-        "restarts_by_actor": [r - r0 for r, r0 in zip(loop.restarts_by_actor, loop.restarts_at_start, strict=True)],
-        "actor_pids": sorted(loop.pids),
-        "replay_bytes_per_transition": replay.nbytes / replay.capacity,
-        "stopped": STOP.is_set(),
-    }
+    return _summary(loop, learner, replay, cfg, t_end, use_ray)
 
 
 def _run_streams(loop: _StreamsLoop, pool: _LocalPool | _RayPool) -> float:
@@ -892,3 +876,24 @@ def _run_streams(loop: _StreamsLoop, pool: _LocalPool | _RayPool) -> float:
     finally:
         loop.bar.close()
     return t_end
+
+
+def _summary(loop: _StreamsLoop, learner: Learner, replay: StreamReplay, cfg: Config, t_end: float, use_ray: bool) -> dict[str, Any]:
+    """What :func:`train_distributed` returns, from its loop, learner and replay at the end."""
+    t0, s0 = loop.first_batch if loop.first_batch is not None else (t_end, loop.step)
+    return {
+        "steps": loop.step,
+        "updates": learner.updates,
+        "episodes": loop.episodes,
+        "best_score": learner.best_score,
+        "last_eval": learner.last_eval,
+        "wall_s": t_end - loop.t_start,
+        "env_steps_per_s": (loop.step - s0) / max(t_end - t0, 1e-9),
+        "servers": cfg.servers,
+        "backend": "ray" if use_ray else "local",
+        "transitions_by_actor": list(loop.transitions_by_actor),
+        "restarts_by_actor": [r - r0 for r, r0 in zip(loop.restarts_by_actor, loop.restarts_at_start, strict=True)],
+        "actor_pids": sorted(loop.pids),
+        "replay_bytes_per_transition": replay.nbytes / replay.capacity,
+        "stopped": STOP.is_set(),
+    }
