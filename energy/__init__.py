@@ -30,7 +30,7 @@ from energy.ev import (
     vtcpem_per_mile,
     vtcpem_power_w,
 )
-from energy.metrics import SETTLE_S, VEHICLE_NAMES, evaluate_run
+from energy.metrics import SCENARIO_VEHICLES, SETTLE_S, VEHICLE_NAMES, evaluate_run
 from energy.runlog import REQUIRED_COLUMNS, RunLog, read_run_log
 
 __all__ = [
@@ -41,6 +41,7 @@ __all__ = [
     "REQUIRED_COLUMNS",
     "SETTLE_S",
     "VEHICLE_NAMES",
+    "SCENARIO_VEHICLES",
     "CmemResult",
     "CmemVehicle",
     "Cycle",

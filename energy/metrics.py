@@ -41,6 +41,8 @@ SETTLE_S = 15.0  # [s] default start left out of the comfort figures (runs start
 
 VEHICLE_NAMES = ("corolla", "average", "leaf")
 """Vehicles :func:`evaluate_run` accepts by name."""
+SCENARIO_VEHICLES = {"ice": "corolla", "ev": "leaf"}
+"""The vehicle each simulator scenario's host is scored as, unless another is asked for."""
 
 Metrics = dict[str, float | int | str | None]
 

@@ -27,7 +27,7 @@ import click
 from agent_client.drive import COLD_START_HELP
 from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.outputs import writable_dir_option
-from energy import SETTLE_S
+from energy import SCENARIO_VEHICLES, SETTLE_S
 from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
 from protocol.options import SunElevation
 from protocol.scenarios import LEAD_SCENARIOS, SCENARIOS
@@ -64,7 +64,7 @@ LABELS = {
 }
 OPTIONAL = ("ddqn-eco",)  # beyond the paper: in the default methods only where its model is shipped
 HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
-DEFAULT_VEHICLE = {"ice": "corolla", "ev": "leaf"}
+DEFAULT_VEHICLE = SCENARIO_VEHICLES
 
 SUITES = ("paper", "safety", "random")
 SAFETY_SEEDS = "0-9"

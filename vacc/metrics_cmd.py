@@ -10,7 +10,7 @@ import click
 
 from agent_client.errors import InputFileError
 from agent_client.runlog import read_card
-from energy import RunLogError, evaluate_run
+from energy import SCENARIO_VEHICLES, RunLogError, evaluate_run
 from energy.metrics import D_SAFE_M, SETTLE_S, TIME_GAP_S, VEHICLE_NAMES, Metrics
 
 
@@ -44,10 +44,9 @@ def card_vehicle(card: dict[str, Any] | None, given: str | None) -> str:
     """The vehicle to score with: ``given`` (--vehicle), else the card's scenario's, else
     corolla. A given one of the other powertrain than the card's scenario is said in one
     line on stderr (it still scores: the option overrides)."""
-    from vacc.evaluate import DEFAULT_VEHICLE  # the scenario's vehicle, one source
 
     scenario = ((card or {}).get("episode") or {}).get("scenario")
-    own = DEFAULT_VEHICLE.get(scenario) if isinstance(scenario, str) else None
+    own = SCENARIO_VEHICLES.get(scenario) if isinstance(scenario, str) else None
     if given is None:
         return own or "corolla"
     if own is not None and (given == "leaf") != (own == "leaf"):
