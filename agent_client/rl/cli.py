@@ -166,10 +166,22 @@ def _resume_command(ctx: click.Context, run: Path) -> str:
     return shlex.join(words)
 
 
+def _is_checkpoint(path: str) -> bool:
+    """Whether ``path`` starts as ``torch.save``'s zip archive does."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False  # the reading below says what is wrong
+
+
 def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """--config FILE: a run's config.json gives the defaults; options given override them."""
     if value is None:
         return None
+    if _is_checkpoint(value):
+        raise click.BadParameter(f"{value} is a checkpoint, not a config.json: write its settings with `vacc checkpoint config {value} --out config.json`",
+                                 param_hint="--config")  # fmt: skip
     try:
         saved = json.loads(Path(value).read_text())
         cfg = config_from(saved, value)
