@@ -26,6 +26,7 @@ COMMANDS = {
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
     "evaluate": "vacc.evaluate:evaluate",
+    "models": "vacc.models_cmd:models",
 }
 
 
