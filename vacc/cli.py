@@ -20,11 +20,13 @@ COMMANDS = {
     "serve": "sim_server.cli:serve",
     "drive": "agent_client.cli:drive",
     "train": "agent_client.rl.cli:train",
+    "checkpoint": "vacc.checkpoint_cmd:checkpoint",
     "metrics": "vacc.metrics_cmd:metrics",
     "snapshot": "vacc.snapshot_cmd:snapshot",
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
     "evaluate": "vacc.evaluate:evaluate",
+    "models": "vacc.models_cmd:models",
 }
 
 

@@ -4,7 +4,8 @@
 * :mod:`~agent_client.rl.network`: the Q-network and its one inference path;
 * :mod:`~agent_client.rl.replay`: the replay memory (frames stored once);
 * :mod:`~agent_client.rl.learner`: the :class:`Learner` both trainers feed;
-* :mod:`~agent_client.rl.checkpoint`: the one checkpoint layout, with its digest;
+* :mod:`~agent_client.rl.checkpoint`: the one checkpoint layout, with its digest and lineage, and
+  the model surgery (average, decide, narrow, export) that ``vacc checkpoint`` runs;
 * :mod:`~agent_client.rl.evaluation`: greedy evaluation episodes and their score;
 * :mod:`~agent_client.rl.scalars`: ``scalars.csv``/TensorBoard and the progress line;
 * :mod:`~agent_client.rl.train`: the single-stream loop (serial or parallel schedule);

@@ -14,6 +14,12 @@ A checkpoint is a ``torch.save`` dict::
     state    the loop's counters (step, episodes, best score, ...)
     rng      generator states by name, torch's and python's
     replay   the replay file names that go with it
+    lineage  what made it (absent in files written before it was recorded: unknown)::
+
+                 {"stage": "train" | "average" | "decide" | "narrow" | "export",
+                  "parents": [{"sha256": <the parent file's SHA-256>, "path": <informative only>,
+                               "role": <train only: "init_from" | "teacher_policy">}],
+                  "recipe": None (the recipe's digest, once recipes exist)}
 
 Every write is atomic and durable (a temporary file, fsynced, then ``os.replace``, then
 the folder fsynced). A failed write (a full
@@ -27,13 +33,14 @@ import dataclasses
 import hashlib
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import torch
 import torch.nn as nn
 
-from agent_client.errors import ClientError, InputFileError, OutputFileError
+from agent_client.errors import InputFileError, OutputFileError
 from agent_client.outputs import write_cause
 from agent_client.rl.config import Config, config_dict, config_from
 from agent_client.rl.network import QNetwork
@@ -54,6 +61,12 @@ __all__ = [
     "narrow_policy",
     "export_policy",
     "POLICY_FIELDS",
+    "Lineage",
+    "Parent",
+    "LINEAGE_STAGES",
+    "file_sha256",
+    "make_lineage",
+    "upgrade",
 ]
 
 CHECKPOINT_FORMAT = "vacc-ddqn"
@@ -63,6 +76,66 @@ READABLE_VERSIONS = (1, 2)
 
 class CheckpointWriteError(OutputFileError):
     """A checkpoint or replay file could not be written (e.g. the disk is full)."""
+
+
+LINEAGE_STAGES = ("train", "average", "decide", "narrow", "export")
+"""The steps that write a checkpoint's ``lineage["stage"]``."""
+
+
+class _ParentFile(TypedDict):
+    sha256: str
+    path: str
+
+
+class Parent(_ParentFile, total=False):
+    """A file a checkpoint was made from: its SHA-256 identifies it, its path only hints."""
+
+    role: str
+
+
+class Lineage(TypedDict):
+    """What made a checkpoint (its ``lineage`` entry)."""
+
+    stage: str
+    parents: list[Parent]
+    recipe: str | None
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a file's bytes, as ``sha256sum`` prints it.
+
+    Raises:
+        InputFileError: the file cannot be read.
+    """
+    h = hashlib.sha256()
+    try:
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    return h.hexdigest()
+
+
+def make_lineage(stage: str, parents: Sequence[str | Path], roles: Sequence[str] | None = None) -> Lineage:
+    """The lineage of a checkpoint that ``stage`` makes from the files ``parents``.
+
+    Args:
+        stage: one of :data:`LINEAGE_STAGES`.
+        parents: the input checkpoints, hashed now (before anything can overwrite them).
+        roles: what each parent was to the stage (training: ``init_from``, ``teacher_policy``).
+
+    Raises:
+        InputFileError: a parent cannot be read.
+    """
+    assert stage in LINEAGE_STAGES, stage
+    listed: list[Parent] = []
+    for i, path in enumerate(parents):
+        parent: Parent = {"sha256": file_sha256(path), "path": str(path)}
+        if roles is not None:
+            parent["role"] = roles[i]
+        listed.append(parent)
+    return {"stage": stage, "parents": listed, "recipe": None}
 
 
 def _feed(h: Any, obj: Any) -> None:
@@ -190,23 +263,27 @@ def load_weights(module: nn.Module, state: dict[str, Any], path: str | Path, wha
         raise InputFileError(f"{path}: {what} weights do not fit the network (wrong shape or layers): {detail[:300]}") from None
 
 
-def save_policy(q: QNetwork, cfg: Config, path: str | Path, extra: dict[str, Any] | None = None) -> None:
+def save_policy(q: QNetwork, cfg: Config, path: str | Path, extra: dict[str, Any] | None = None,
+                lineage: Lineage | None = None) -> None:
     """Write a policy-only checkpoint (weights + settings, < 5 MB), atomically.
+
+    Args:
+        lineage: what made it (see :func:`make_lineage`); None writes no ``lineage`` entry.
 
     Raises:
         CheckpointWriteError: see :func:`atomic_save`.
     """
-    atomic_save(
-        {
-            "format": CHECKPOINT_FORMAT,
-            "version": CHECKPOINT_VERSION,
-            "kind": "policy",
-            "config": config_dict(cfg),
-            "model": {k: v.detach().cpu() for k, v in q.state_dict().items()},
-            "extra": extra or {},
-        },
-        Path(path),
-    )
+    payload: dict[str, Any] = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "kind": "policy",
+        "config": config_dict(cfg),
+        "model": {k: v.detach().cpu() for k, v in q.state_dict().items()},
+        "extra": extra or {},
+    }
+    if lineage is not None:
+        payload["lineage"] = lineage
+    atomic_save(payload, Path(path))
 
 
 def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[QNetwork, Config]:
@@ -278,6 +355,7 @@ def with_decision(src: str | Path, dst: str | Path, decision: str, temperature: 
     except ValueError as exc:
         raise InputFileError(f"{src}: {exc}") from None
     ckpt["config"] = config_dict(cfg)
+    ckpt["lineage"] = make_lineage("decide", [src])
     atomic_save({k: v for k, v in ckpt.items() if k != "sha256"}, Path(dst))
     return cfg
 
@@ -355,7 +433,7 @@ def average_policies(srcs: list[str | Path], dst: str | Path, weights: list[floa
     state = {k: (total[k] / weight_sum).to(v.dtype) if k in floats else v for k, v in first["model"].items()}
     q = QNetwork.of(cfg)
     load_weights(q, state, srcs[0])
-    save_policy(q, cfg, dst, {"step": sources[0]["step"], "average_of": sources})
+    save_policy(q, cfg, dst, {"step": sources[0]["step"], "average_of": sources}, make_lineage("average", srcs))
     return cfg
 
 
@@ -419,7 +497,7 @@ def narrow_policy(src: str | Path, dst: str | Path, conv_channels: tuple[int, in
     narrow_cfg = dataclasses.replace(cfg, conv_channels=tuple(conv_channels), hidden=hidden)
     narrow = QNetwork.of(narrow_cfg)
     load_weights(narrow, {k: v.clone() for k, v in state.items()}, src)
-    save_policy(narrow, narrow_cfg, dst, {"narrowed_from": str(src), "widths_from": list(old)})
+    save_policy(narrow, narrow_cfg, dst, {"narrowed_from": str(src), "widths_from": list(old)}, make_lineage("narrow", [src]))
     return narrow_cfg
 
 
@@ -439,84 +517,5 @@ def export_policy(src: str | Path, dst: str | Path) -> int:
     ckpt = read_checkpoint(src)
     step = int(ckpt.get("state", {}).get("global_step", ckpt.get("extra", {}).get("step", 0)))
     q, cfg = load_policy(src)
-    save_policy(q, cfg, dst, {"step": step, "from": str(src)})
+    save_policy(q, cfg, dst, {"step": step, "from": str(src)}, make_lineage("export", [src]))
     return step
-
-
-def _three_widths(text: str) -> tuple[int, int, int]:
-    """``narrow --conv-channels``: three whole numbers, comma-separated."""
-    import argparse
-
-    parts = text.split(",")
-    if len(parts) != 3 or not all(p.strip().isdigit() for p in parts):
-        raise argparse.ArgumentTypeError(f"want three whole numbers such as 8,16,32, got {text!r}")
-    a, b, c = (int(p) for p in parts)
-    return a, b, c
-
-
-def _main(argv: list[str]) -> None:
-    import argparse
-
-    from agent_client.rl.config import DECISIONS
-
-    ap = argparse.ArgumentParser(prog="python -m agent_client.rl.checkpoint", description="Checkpoint maintenance.")
-    sub = ap.add_subparsers(dest="command", required=True)
-    up = sub.add_parser("upgrade", help="Rewrite version-1 checkpoints in this layout (weights unchanged).")
-    up.add_argument("paths", nargs="+", metavar="CHECKPOINT.pt")
-    dec = sub.add_parser("decide", help="Copy a policy with another decision rule (Config.decision; weights unchanged).")
-    dec.add_argument("src", metavar="SRC.pt")
-    dec.add_argument("dst", metavar="DST.pt", help="a new file")
-    dec.add_argument("--decision", required=True, choices=DECISIONS)
-    dec.add_argument("--temperature", type=float, default=None, help="the mean decision's softmax temperature (default: the checkpoint's)")
-    dec.add_argument("--brake-share", type=float, default=None,
-                     help="the mean decision's full-brake share that brakes at once (Config.decision_brake_share; default: the checkpoint's)")
-    dec.add_argument("--brake-confirm", type=int, default=None, metavar="N",
-                     help="decisions in a row at the brake share before it brakes fully (Config.decision_brake_confirm; default: the checkpoint's)")
-    dec.add_argument("--full-brake-confirm", type=int, default=None, metavar="N",
-                     help="decisions in a row with the full brake the argmax before it acts at once; until then the ramp "
-                          "heads for it (Config.decision_full_brake_confirm; default: the checkpoint's)")
-    dec.add_argument("--deadband", type=float, default=None,
-                     help="force within which the mean decision keeps the held force (Config.decision_deadband; default: the checkpoint's)")
-    dec.add_argument("--smoothing", type=float, default=None,
-                     help="the share of the way to the mean's target asked each step (Config.decision_smoothing; default: the checkpoint's)")
-    pol = sub.add_parser("policy", help="Write a training checkpoint's policy alone (< 5 MB, as best.pt; weights unchanged).")
-    pol.add_argument("src", metavar="SRC.pt")
-    pol.add_argument("dst", metavar="DST.pt", help="a new file")
-    nar = sub.add_parser("narrow", help="Write a policy cut down to fewer channels and hidden units (a start for distilling it; it must be trained).")
-    nar.add_argument("src", metavar="SRC.pt")
-    nar.add_argument("dst", metavar="DST.pt", help="a new file")
-    nar.add_argument("--conv-channels", required=True, type=_three_widths, metavar="C1,C2,C3",
-                     help="the three convolutions' channels, each at most SRC's")
-    nar.add_argument("--hidden", required=True, type=int, help="the hidden layer's units, at most SRC's")
-    avg = sub.add_parser("average", help="Write the mean of the weights of policies fine-tuned from one start (a model soup).")
-    avg.add_argument("srcs", nargs="+", metavar="SRC.pt", help="two or more policies that see and act alike")
-    avg.add_argument("--out", required=True, metavar="DST.pt", help="a new file")
-    avg.add_argument("--weights", type=float, nargs="+", default=None, metavar="W",
-                     help="one positive weight per policy, normalised to sum to 1 (default: equal)")
-    a = ap.parse_args(argv)
-    try:
-        if a.command == "upgrade":
-            for name in a.paths:
-                print(f"{name}: {'upgraded to version 2' if upgrade(name) else 'already version 2'}")
-        elif a.command == "average":
-            average_policies(a.srcs, a.out, a.weights)
-            print(f"{a.out}: the {'weighted ' if a.weights else ''}mean of {len(a.srcs)} policies")
-        elif a.command == "narrow":
-            cfg = narrow_policy(a.src, a.dst, a.conv_channels, a.hidden)
-            print(f"{a.dst}: conv {'/'.join(map(str, cfg.conv_channels))}, hidden {cfg.hidden}; train it before driving it")
-        elif a.command == "policy":
-            print(f"{a.dst}: the policy at step {export_policy(a.src, a.dst)}")
-        else:
-            cfg = with_decision(a.src, a.dst, a.decision, a.temperature, a.brake_share, a.deadband, a.smoothing, a.brake_confirm,
-                                a.full_brake_confirm)
-            print(f"{a.dst}: decision {cfg.decision}, temperature {cfg.decision_temperature:g}, brake share {cfg.decision_brake_share:g} "
-                  f"(confirmed in {cfg.decision_brake_confirm}), the argmax's full brake confirmed in {cfg.decision_full_brake_confirm}, "
-                  f"deadband {cfg.decision_deadband:g}, smoothing {cfg.decision_smoothing:g}")
-    except ClientError as exc:
-        ap.exit(2, f"{ap.prog}: error: {exc}\n")
-
-
-if __name__ == "__main__":  # python -m agent_client.rl.checkpoint {upgrade,decide,policy,average,narrow} ...
-    import sys
-
-    _main(sys.argv[1:])

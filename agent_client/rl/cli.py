@@ -169,6 +169,15 @@ def _resume_command(ctx: click.Context, run: Path) -> str:
     return shlex.join(words)
 
 
+def _is_checkpoint(path: str | Path) -> bool:
+    """Whether ``path`` starts as ``torch.save``'s zip archive does."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False  # the reading below says what is wrong
+
+
 def _config_defaults(ctx: click.Context, path: str | Path, *, refuse: type[click.ClickException] = click.BadParameter) -> None:
     """A run's config.json becomes the defaults of every Config option.
 
@@ -198,6 +207,9 @@ def _load_config(ctx: click.Context, param: click.Parameter, value: str | None) 
     """--config FILE: a run's config.json gives the defaults; options given override them."""
     if value is None:
         return None
+    if _is_checkpoint(value):
+        raise click.BadParameter(f"{value} is a checkpoint, not a config.json: write its settings with `vacc checkpoint config {value} --out config.json`",
+                                 param_hint="--config")  # fmt: skip
     _config_defaults(ctx, value)
     ctx.meta[CONFIG_GIVEN] = True
     return value

@@ -36,10 +36,12 @@ from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_VERSION,
+    Lineage,
     atomic_save,
     checkpoint_config,
     load_policy,
     load_weights,
+    make_lineage,
     read_checkpoint,
     save_policy,
 )
@@ -163,6 +165,8 @@ class Learner:
         loss_terms: the named terms whose sum each gradient step minimises, main term first
             (:func:`~agent_client.rl.losses.build_terms`).
         saved: the loop state of the resumed checkpoint ({} for a new run).
+        lineage: what every checkpoint of the run records it was made from (None: a
+            resumed run whose ``latest.pt`` predates lineage, so unknown).
         replay_names: the replay files that go with it (then with the last checkpoint written).
 
     Raises:
@@ -205,6 +209,7 @@ class Learner:
         self.best_score = math.inf
         self.saved: dict[str, Any] = {}
         self.replay_names: list[str] = []
+        self.lineage: Lineage | None = None
         if resume:  # every check that can fail, before anything in the run folder is written
             self._resume()
             if load_replay is not None:
@@ -212,6 +217,7 @@ class Learner:
             self._check_best()
         else:
             self._init_from()
+            self.lineage = self._new_lineage()
         if self.parallel:
             if not resume:
                 self.acting.load_state_dict(self.q.state_dict())
@@ -258,6 +264,14 @@ class Learner:
             transfer_weights(init_q, self.q)
         self.target.load_state_dict(self.q.state_dict())
 
+    def _new_lineage(self) -> Lineage:
+        """A new run's lineage: the files it starts from and learns from, hashed now, as they
+        were read (a later step may overwrite what their paths name)."""
+        cfg = self.cfg
+        parents = {"init_from": cfg.init_from, "teacher_policy": cfg.teacher_policy if cfg.teacher == "policy" else None}
+        named = {role: path for role, path in parents.items() if path is not None}
+        return make_lineage("train", list(named.values()), list(named))
+
     def _resume(self) -> None:
         path = self.run_dir / "latest.pt"
         ckpt = read_checkpoint(path)
@@ -267,6 +281,7 @@ class Learner:
             what = "K-stream trainer; resume it with --servers/--ray" if ckpt["trainer"] == "streams" else "single-stream trainer; resume it without --servers/--ray"
             raise InputFileError(f"{path}: written by the {what}")
         self._check_resume_config(ckpt, path)
+        self.lineage = ckpt.get("lineage")
         load_weights(self.q, ckpt["model"], path)
         load_weights(self.target, ckpt["target"], path, "target")
         if self.parallel:
@@ -414,10 +429,10 @@ class Learner:
         s = score(self.log, self.last_eval, step)
         if s < self.best_score:
             self.best_score = s
-            save_policy(self.q, cfg, self.run_dir / "best.pt", {"step": step, "eval": self.last_eval})
+            save_policy(self.q, cfg, self.run_dir / "best.pt", {"step": step, "eval": self.last_eval}, self.lineage)
         if cfg.keep_evals:
             (self.run_dir / "evals").mkdir(exist_ok=True)
-            save_policy(self.q, cfg, self.run_dir / "evals" / f"{step}.pt", {"step": step, "eval": self.last_eval})
+            save_policy(self.q, cfg, self.run_dir / "evals" / f"{step}.pt", {"step": step, "eval": self.last_eval}, self.lineage)
         self.log.flush()
         if self.on_eval is not None:
             self.on_eval(step, self.last_eval)
@@ -472,6 +487,8 @@ class Learner:
         }  # fmt: skip
         if self.parallel:
             payload["acting"] = self.acting.state_dict()
+        if self.lineage is not None:
+            payload["lineage"] = self.lineage
         atomic_save(payload, self.run_dir / "latest.pt")
 
     def close(self) -> None:

@@ -89,11 +89,11 @@ def test_policies_that_see_or_act_differently_or_a_lone_one_or_an_existing_file_
 
 def test_the_command_line_averages_and_says_what_was_wrong_in_one_line(tmp_path):
     a, b = _policies(tmp_path, 2)
-    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "average"]
+    cli = [sys.executable, "-m", "vacc", "checkpoint", "average"]
     done = subprocess.run([*cli, str(a), str(b), "--out", str(tmp_path / "soup.pt")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "the mean of 2 policies" in done.stdout
     assert load_policy(tmp_path / "soup.pt")[1].zoom == 2
-    done = subprocess.run([*cli, str(a), str(b), "--weights", "3", "1", "--out", str(tmp_path / "w.pt")], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([*cli, str(a), str(b), "--weights", "3,1", "--out", str(tmp_path / "w.pt")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "the weighted mean of 2 policies" in done.stdout
     assert [r["share"] for r in read_checkpoint(tmp_path / "w.pt")["extra"]["average_of"]] == [0.75, 0.25]
     done = subprocess.run([*cli, str(a), str(b), "--weights", "1", "--out", str(tmp_path / "z.pt")], capture_output=True, text=True, timeout=120)

@@ -156,7 +156,7 @@ def test_train_cli_writes_the_run_folder(trained_run):
 def test_a_training_checkpoint_exports_as_a_policy_with_its_weights(trained_run, tmp_path):
     out, _ = trained_run
     dst = tmp_path / "policy.pt"
-    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "policy", str(out / "latest.pt"), str(dst)]
+    cli = [sys.executable, "-m", "vacc", "checkpoint", "export", str(out / "latest.pt"), str(dst)]
     done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "at step 200" in done.stdout, done.stderr
     assert dst.stat().st_size < 5e6 < (out / "latest.pt").stat().st_size  # no target, optimizer or RNG

@@ -215,7 +215,7 @@ def test_a_policy_copied_with_another_decision_keeps_its_weights_and_the_origina
     assert load_policy(dst)[1].decision == "mean"  # not overwritten
     dqn = tmp_path / "dqn.pt"
     save_policy(QNetwork(), Config(), dqn)
-    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "decide", str(dqn), str(tmp_path / "x.pt"), "--decision", "mean"]
+    cli = [sys.executable, "-m", "vacc", "checkpoint", "decide", str(dqn), str(tmp_path / "x.pt"), "--decision", "mean"]
     done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "needs a teacher" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.pt").exists()
@@ -278,12 +278,12 @@ def test_decide_records_the_brake_confirmation(tmp_path):
     cfg = Config(**STUDENT)
     src, dst = tmp_path / "student.pt", tmp_path / "confirmed.pt"
     save_policy(QNetwork.of(cfg), cfg, src)
-    cli = [sys.executable, "-m", "agent_client.rl.checkpoint", "decide", str(src), str(dst), "--decision", "mean",
+    cli = [sys.executable, "-m", "vacc", "checkpoint", "decide", str(src), str(dst), "--decision", "mean",
            "--brake-share", "0.1", "--brake-confirm", "2", "--full-brake-confirm", "3"]  # fmt: skip
     done = subprocess.run(cli, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "(confirmed in 2)" in done.stdout and "full brake confirmed in 3" in done.stdout, done.stderr
     assert load_policy(dst)[1].decision_brake_confirm == 2 and load_policy(dst)[1].decision_full_brake_confirm == 3
-    bad = subprocess.run([*cli[:5], str(tmp_path / "bad.pt"), "--decision", "mean", "--brake-confirm", "2"], capture_output=True, text=True, timeout=120)
+    bad = subprocess.run([*cli[:6], str(tmp_path / "bad.pt"), "--decision", "mean", "--brake-confirm", "2"], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "decision_brake_confirm" in bad.stderr and not (tmp_path / "bad.pt").exists()
 
 

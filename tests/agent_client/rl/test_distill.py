@@ -168,17 +168,14 @@ def test_narrowing_drops_the_weakest_units_and_the_columns_that_read_them(tmp_pa
         torch.testing.assert_close(narrow(*_inputs()), wide(*_inputs()), rtol=0, atol=1e-5)
 
 
-def test_narrowing_refuses_a_wider_network_and_an_existing_file(tmp_path, capsys):
-    from agent_client.rl.checkpoint import _main
-
+def test_narrowing_refuses_a_wider_network_and_an_existing_file(tmp_path):
     (tmp_path / "there.pt").write_bytes(b"")
     for args, words in ((["--conv-channels", "16,64,64", "--hidden", "128"], "narrowing needs each new width from 1"),
                         (["--conv-channels", "8,16,32", "--hidden", "0"], "narrowing needs each new width from 1"),
                         (["--conv-channels", "8,16", "--hidden", "128"], "want three whole numbers such as 8,16,32, got '8,16'"),
                         (["--conv-channels", "8,a,32", "--hidden", "128"], "want three whole numbers such as 8,16,32, got '8,a,32'")):  # fmt: skip
-        with pytest.raises(SystemExit) as e:
-            _main(["narrow", TEACHER, str(tmp_path / "n.pt"), *args])
-        assert e.value.code == 2 and words in capsys.readouterr().err
+        done = CliRunner().invoke(main, ["checkpoint", "narrow", TEACHER, str(tmp_path / "n.pt"), *args])
+        assert done.exit_code == 2 and words in done.stderr
     with pytest.raises(InputFileError, match="exists"):
         from agent_client.rl.checkpoint import narrow_policy
 
