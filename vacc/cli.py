@@ -25,6 +25,8 @@ COMMANDS = {
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
     "evaluate": "vacc.evaluate:evaluate",
+    "gates": "vacc.gates:gates",
+    "reproduce": "vacc.reproduce:reproduce_command",
 }
 
 
