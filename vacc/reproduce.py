@@ -2,7 +2,7 @@
 
 Each stage runs in ``DIR/<stage>/`` and writes one checkpoint, ``DIR/<stage>/<stage>.pt``,
 that records its lineage (``ckpt["lineage"]``: the recipe, its digest, the stage, and its
-parents' SHA-256, not their paths). A finished stage writes ``done.json`` with that file's
+parents' SHA-256 (of their weights: :func:`weights_sha256`), not their paths). A finished stage writes ``done.json`` with that file's
 SHA-256 and is skipped when the same command runs again; a train stage stopped half-way
 (Ctrl-C, kill -9) continues from its run folder's ``latest.pt`` with the trainer's own
 bit-exact resume; a surgery stage (average, decide, narrow, export) is quick and simply
@@ -32,6 +32,7 @@ from agent_client.errors import ClientError
 from agent_client.rl.checkpoint import (
     atomic_save,
     average_policies,
+    digest,
     export_policy,
     narrow_policy,
     read_checkpoint,
@@ -40,7 +41,7 @@ from agent_client.rl.checkpoint import (
 from agent_client.rl.config import Config, single_stream_only
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
-__all__ = ["SEED_STRIDE", "SMOKE", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
+__all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
 
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
@@ -58,6 +59,13 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def weights_sha256(path: Path) -> str:
+    """SHA-256 of a checkpoint's weights alone (:func:`~agent_client.rl.checkpoint.digest` of
+    its ``model``): what a lineage names a parent by, the same wherever the run folder is
+    (the file itself records paths)."""
+    return digest({"model": read_checkpoint(path)["model"]})
 
 
 def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
@@ -106,13 +114,13 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
     if summary.get("stopped"):
         raise KeyboardInterrupt
     output = stage.options["output"]
-    if output.startswith("eval:"):
+    if output.startswith("eval:") and not opts["smoke"]:
         return run / "evals" / f"{output.removeprefix('eval:')}.pt"
     if output == "best" and (run / "best.pt").is_file():
         return run / "best.pt"
     if output == "best" and not opts["smoke"]:
         raise click.ClickException(f"stage {stage.name}: no evaluation passed, so {run / 'best.pt'} was never written")
-    return run / "latest.pt"  # exported as a policy by the caller
+    return run / "latest.pt"  # exported as a policy by the caller (--smoke: for any output)
 
 
 def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:
@@ -153,9 +161,9 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     except (ClientError, ValueError) as exc:
         raise click.ClickException(f"stage {stage.name}: {exc}") from None
     lineage = {"recipe": recipe.name, "recipe_digest": recipe.digest, "stage": stage.name, "kind": stage.kind,
-               "parents": {name: done[name]["sha256"] for name in stage_refs(stage)}, "seed": opts["seed"], "smoke": opts["smoke"]}  # fmt: skip
+               "parents": {name: done[name]["weights_sha256"] for name in stage_refs(stage)}, "seed": opts["seed"], "smoke": opts["smoke"]}  # fmt: skip
     stamp_lineage(dst, lineage)
-    record = {**lineage, "output": dst.name, "sha256": file_sha256(dst)}
+    record = {**lineage, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst)}
     record_file.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
