@@ -254,6 +254,18 @@ LEAD_SCENARIOS: dict[str, LeadScenario] = {
                 Param("gap", 30.0, 60.0, "m", "initial gap"),
             ),
         ),
+        LeadScenario(
+            "distant-stop",
+            "The lead, far ahead while the host cruises at the set speed, brakes to a standstill and stays there.",
+            "Euro NCAP CCRb (braking target, up to 4 m/s^2) met from far behind; ISO 15622 approach to a stopping target beyond the camera's range",
+            60.0,
+            (
+                Param("v_cruise", 24.0, 30.0, "m/s", "lead's initial speed (below the default set speed: the host closes)"),
+                Param("gap", 100.0, 200.0, "m", "initial gap"),
+                Param("t_brake", 2.0, 10.0, "s", "time the lead cruises before braking"),
+                Param("decel", 2.0, 4.0, "m/s^2", "lead's deceleration"),
+            ),
+        ),
     )
 }
 

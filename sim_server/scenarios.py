@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from protocol.scenarios import LEAD_SCENARIOS, LeadScenario, stopping_gap
+from protocol.scenarios import DEFAULT_SET_SPEED, LEAD_SCENARIOS, LeadScenario, stopping_gap
 from sim_server.errors import TrajectoryError
 
 __all__ = ["LeadEpisode", "build", "ramp_profile"]
@@ -122,6 +122,11 @@ def build(name: str, rng: np.random.Generator, dt: float) -> LeadEpisode:
         return LeadEpisode(ramp_profile(p["v_lead"], (), dt, T), p["v_lead"] - p["speed_deficit"], p["gap"], p)
     if name == "stop-and-go":
         return _stop_and_go(spec, rng, dt)
+    if name == "distant-stop":
+        # The host starts at the default set speed (a lower set speed caps it at reset).
+        p = {k: _draw(spec, rng, k) for k in ("v_cruise", "gap", "t_brake", "decel")}
+        v = ramp_profile(p["v_cruise"], [(p["v_cruise"], 1.0, p["t_brake"]), (0.0, p["decel"], T)], dt, T)
+        return LeadEpisode(v, DEFAULT_SET_SPEED, p["gap"], p)
     if name == "constant":
         p = {k: _draw(spec, rng, k) for k in ("v_lead", "speed_offset", "gap")}
         return LeadEpisode(ramp_profile(p["v_lead"], (), dt, T), max(0.0, p["v_lead"] + p["speed_offset"]), p["gap"], p)

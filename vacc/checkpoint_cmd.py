@@ -94,7 +94,9 @@ def _lineage_lines(summary: dict[str, Any]) -> list[str]:
         lines = ["  unknown: written before checkpoints recorded their lineage"]
         lines += [f"  recorded source (a path, informative only): {p}" for p in summary["recorded_sources"]]
         return lines
-    lines = [f"  stage    {lineage['stage']}", f"  recipe   {lineage.get('recipe') or 'none'}"]
+    made = lineage.get("recipe")
+    recipe = f"{made['name']}, stage {made['stage']} (digest {made['digest'][:12]}, seed {made['seed']})" if isinstance(made, dict) else "none"
+    lines = [f"  stage    {lineage['stage']}", f"  recipe   {recipe}"]
     if not lineage["parents"]:
         lines.append("  parents  none (trained from scratch)")
     for parent in lineage["parents"]:

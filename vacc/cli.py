@@ -26,7 +26,9 @@ COMMANDS = {
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
     "evaluate": "vacc.evaluate:evaluate",
+    "gates": "vacc.gates:gates",
     "models": "vacc.models_cmd:models",
+    "reproduce": "vacc.reproduce:reproduce_command",
 }
 
 

@@ -98,7 +98,7 @@ class Lineage(TypedDict):
 
     stage: str
     parents: list[Parent]
-    recipe: str | None
+    recipe: dict[str, Any] | None  # vacc reproduce's: recipe name, digest, stage name, seed, smoke
 
 
 def file_sha256(path: str | Path) -> str:

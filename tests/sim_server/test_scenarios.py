@@ -280,3 +280,24 @@ def test_the_limiter_never_touches_braking():
     world.reset("ice", 0, "test-1", set_speed=20.0)
     s = world.step(-1.0)
     assert s.accel == pytest.approx(A_MIN)
+
+
+def test_distant_stop_shape():
+    ep = S.build("distant-stop", np.random.default_rng(0), DT)
+    p = ep.params
+    assert ep.v_host == DEFAULT_SET_SPEED and ep.v_lead[0] == p["v_cruise"] < ep.v_host
+    assert 100.0 <= ep.gap <= 200.0 and ep.v_lead[-1] == 0.0
+    t_stop = p["t_brake"] + p["v_cruise"] / p["decel"]
+    assert np.flatnonzero(ep.v_lead == 0.0)[0] * DT == pytest.approx(t_stop, abs=DT)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_distant_stop_can_be_stopped_for_by_slowing_on_the_approach(seed):
+    # A host that holds the lead's speed once within 60 m, and brakes fully when the lead
+    # brakes, stops short: the scenario asks for an approach, not a miracle.
+    world = World()
+    obs = world.reset("ice", seed, "distant-stop")
+    while not (obs.terminated or obs.truncated):
+        u = -1.0 if obs.a_lead < 0 or (obs.gap < 60.0 and obs.v_lead < obs.v_host) else 0.3
+        obs = world.step(u)
+    assert not obs.collision and obs.v_lead == 0.0 and obs.gap >= STOP_MARGIN

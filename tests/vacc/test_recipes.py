@@ -1,0 +1,152 @@
+"""Recipes: every shipped one parses; a bad one is refused in one line naming the file and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import tomllib
+
+from vacc.recipes import (
+    RECIPES_DIR,
+    RecipeError,
+    digest,
+    load_recipe,
+    parse_recipe,
+    stage_config,
+    stage_refs,
+)
+
+RECIPES = sorted(p.stem for p in RECIPES_DIR.glob("*.toml"))
+SHIPPED = ("ice-gap", "ice-force", "ice-eco", "ev-gap", "ev-force", "ev-eco")
+
+
+def test_there_is_a_recipe_for_every_shipped_model():
+    assert set(SHIPPED) <= set(RECIPES)
+
+
+@pytest.mark.parametrize("name", RECIPES)
+def test_every_recipe_parses_and_names_only_earlier_stages(name):
+    recipe = load_recipe(name)
+    assert recipe.name == name and recipe.stages and recipe.gates["tests"]["max_gap_rmse_m"] > 0
+    seen: set[str] = set()
+    for stage in recipe.stages:
+        assert set(stage_refs(stage)) <= seen
+        if stage.kind == "train":
+            assert stage_config(stage).total_steps > 0
+        seen.add(stage.name)
+
+
+def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
+    from agent_client.rl.checkpoint import checkpoint_config, read_checkpoint
+    from agent_client.rl.config import config_dict
+
+    models = Path(__file__).resolve().parents[2] / "models"
+    for name, stage, parent in (("ice-gap", "bm10", "g2"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1")):
+        path = models / f"{name}.pt"
+        shipped = config_dict(checkpoint_config(read_checkpoint(path), path))
+        cfg = config_dict(stage_config(load_recipe(name).stage(stage), {parent: shipped["init_from"]}))
+        assert cfg == shipped, name
+
+
+def test_digest_is_of_the_content_not_the_layout(tmp_path):
+    text = (RECIPES_DIR / "ev-force.toml").read_text()
+    a = digest(tomllib.loads(text))
+    assert a == load_recipe("ev-force").digest
+    assert digest(tomllib.loads("# a comment\n" + text)) == a
+    assert digest(tomllib.loads(text.replace("seed = 72", "seed = 73"))) != a
+
+
+def _content() -> dict:
+    return tomllib.loads((RECIPES_DIR / "ev-force.toml").read_text())
+
+
+def _refuse(content: dict, *words: str) -> None:
+    with pytest.raises(RecipeError) as info:
+        parse_recipe(content, Path("recipes/x.toml"))
+    message = str(info.value)
+    assert "\n" not in message and message.startswith("recipes/x.toml: ")
+    for w in words:
+        assert w in message, message
+
+
+def test_unknown_key_is_refused():
+    c = _content()
+    c["stage"][1]["learning_rat"] = 1e-4
+    _refuse(c, "stage 'ev-gap'.learning_rat", "unknown key")
+    c = _content()
+    c["recipe"]["seeds"] = 3
+    _refuse(c, "recipe.seeds", "unknown key")
+    c = _content()
+    c["gates"]["tests"]["max_rmse"] = 3
+    _refuse(c, "gates.tests.max_rmse")
+
+
+def test_missing_option_is_refused():
+    c = _content()
+    del c["stage"][0]["gamma"]
+    _refuse(c, "stage 'gap-scratch'.gamma", "missing")
+
+
+def test_unknown_stage_reference_is_refused():
+    c = _content()
+    c["stage"][1]["init_from"] = "stage:nowhere"
+    _refuse(c, "stage 'ev-gap'.init_from", "'stage:nowhere'", "names no earlier stage")
+
+
+def test_a_cycle_is_refused():
+    c = _content()
+    c["stage"][1]["init_from"] = "stage:ev-force"  # a later stage
+    _refuse(c, "stage 'ev-gap'.init_from", "cycle")
+    c = _content()
+    c["stage"][1]["init_from"] = "stage:ev-gap"
+    _refuse(c, "names its own stage (a cycle)")
+
+
+def test_a_path_where_a_stage_is_required_is_refused():
+    c = _content()
+    c["stage"][1]["init_from"] = "models/ice-gap.pt"
+    _refuse(c, "stage 'ev-gap'.init_from", "is not a stage reference", "a path")
+
+
+def test_bad_values_are_refused_naming_the_key():
+    c = _content()
+    c["stage"][0]["kind"] = "distill"
+    _refuse(c, "stage 'gap-scratch'.kind", "'distill'")
+    c = _content()
+    c["stage"][0]["gamma"] = 1.5
+    _refuse(c, "stage 'gap-scratch'.gamma")
+    c = _content()
+    c["stage"][0]["output"] = "eval:100"
+    _refuse(c, "stage 'gap-scratch'.output") if not c["stage"][0]["keep_evals"] else None
+    c = _content()
+    c["stage"][1]["name"] = "gap-scratch"
+    _refuse(c, "another stage has this name")
+    c = _content()
+    c["gates"]["safety"]["scenarios"] = ["stopped", "moon-landing"]
+    _refuse(c, "gates.safety.scenarios", "moon-landing")
+    c = _content()
+    c["recipe"]["scenario"] = "truck"
+    _refuse(c, "recipe.scenario")
+
+
+def test_surgery_stages_are_checked():
+    c = _content()
+    c["stage"].append({"name": "soup", "kind": "average", "inputs": ["stage:mix"], "weights": [1.0]})
+    _refuse(c, "stage 'soup'.inputs", "two or more")
+    c = _content()
+    c["stage"].append({"name": "soup", "kind": "average", "inputs": ["stage:mix", "stage:ev-gap"], "weights": [1.0]})
+    _refuse(c, "stage 'soup'.weights")
+    c = _content()
+    c["stage"].append({"name": "d", "kind": "decide", "input": "stage:mix", "decision": "median", "temperature": 2.0, "brake_share": 1.0,
+                       "brake_confirm": 1, "full_brake_confirm": 1, "deadband": 0.0, "smoothing": 1.0})
+    _refuse(c, "stage 'd'.decision", "'median'")
+
+
+def test_a_missing_recipe_is_named(tmp_path):
+    with pytest.raises(RecipeError, match="neither a recipe file nor a recipe"):
+        load_recipe("no-such-model")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[recipe\n")
+    with pytest.raises(RecipeError, match="not valid TOML"):
+        load_recipe(bad)

@@ -1,0 +1,199 @@
+"""`vacc gates`: check one checkpoint against its recipe's gates, with a pass/fail table.
+
+The gates (``[gates]`` of ``recipes/<model>.toml``, :mod:`vacc.recipes`) are the checks the
+shipped model passes, driven with the evaluation's own runs and scores
+(:mod:`vacc.runs`, :mod:`vacc.safety`, :mod:`vacc.random_suite`):
+
+* ``tests``: test-1..test-4 at one seed: the gap RMSE to 55 m of each, and no collision;
+* ``safety``: the lead scenarios over seeds: every run passes (:func:`vacc.safety.score_run`);
+* ``random``: held-out random leads: the worst seed's gap RMSE, and no collision;
+* ``energy``: the mean energy over the tests against the ACC's on the same runs;
+* ``comfort``: the mean jerk RMS and ISO 1-s jerk share over the tests, after the settle.
+
+``--quick`` (tests only) drives 5 s of each run, the first seed of each set and the
+first two safety scenarios: it checks that the gates run, not that a model passes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import click
+import numpy as np
+
+from energy import SETTLE_S
+from protocol.scenarios import TEST_TRAJECTORIES
+from vacc.paths import MODELS_DEFAULT, models_dir
+from vacc.random_suite import ENERGY, random_jobs, score_random_run
+from vacc.recipes import Recipe, RecipeError, load_recipe
+from vacc.runs import Job, drive_jobs, log_path, parse_seeds, score_runs
+from vacc.safety import safety_jobs, score_run
+
+__all__ = ["Check", "QUICK_SECONDS", "VEHICLES", "evaluate_gates", "gate_table", "gates"]
+
+QUICK_SECONDS = 5.0  # [s] each run of --quick
+QUICK_SCENARIOS = 2  # safety scenarios --quick drives
+VEHICLES = {"ice": "corolla", "ev": "leaf"}  # the energy model of each scenario, as vacc evaluate's default
+
+
+class Check(NamedTuple):
+    """One line of the gate report."""
+
+    gate: str
+    what: str
+    figure: float
+    bound: float
+    passed: bool
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _seeds(text: str, quick: bool) -> list[int]:
+    seeds = parse_seeds(text)
+    return seeds[:1] if quick else seeds
+
+
+def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
+    """The tests, energy and comfort gates: test-1..test-4 driven by the model (and the ACC
+    where the energy gate asks for it)."""
+    g = recipe.gates
+    if not {"tests", "energy", "comfort"} & set(g):
+        return []
+    seed = g.get("tests", {}).get("seed", 0)
+    duration = QUICK_SECONDS if quick else None
+    settle = 0.0 if quick else SETTLE_S
+    methods = ["ddqn"] + (["acc"] if "energy" in g else [])
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    work = [Job(m, t, recipe.scenario, seed, str(log_path(out, m, t)), duration, str(ckpt) if m == "ddqn" else None)
+            for m in methods for t in TEST_TRAJECTORIES]  # fmt: skip
+    drive_jobs(work, jobs, f"gates {recipe.name}: tests")
+    runs = score_runs(out, methods, VEHICLES[recipe.scenario], settle)
+    model = [r for r in runs if r.method == "ddqn"]
+    checks = []
+    if "tests" in g:
+        bound = float(g["tests"]["max_gap_rmse_m"])
+        for r in model:
+            rmse = float(r.metrics["gap_rmse_55m_m"])
+            checks.append(Check("tests", f"{r.trajectory} gap RMSE (m)", rmse, bound, rmse <= bound))
+        collisions = float(sum(r.metrics["collisions"] for r in model))
+        checks.append(Check("tests", "collisions", collisions, 0.0, collisions == 0))
+    if "energy" in g:
+        key = ENERGY[recipe.scenario][0]
+        acc = [r for r in runs if r.method == "acc"]
+        ratio = float(np.mean([r.metrics[key] for r in model]) / np.mean([r.metrics[key] for r in acc]))
+        bound = float(g["energy"]["max_ratio_to_acc"])
+        checks.append(Check("energy", f"{key} / the ACC's", ratio, bound, ratio <= bound))
+    if "comfort" in g:
+        for key, name in (("jerk_rms_mps3", "max_jerk_rms_mps3"), ("iso_jerk_window_share", "max_iso_jerk_share")):
+            figure = float(np.mean([r.metrics[key] for r in model]))
+            bound = float(g["comfort"][name])
+            checks.append(Check("comfort", f"mean {key}", figure, bound, math.isfinite(figure) and figure <= bound))
+    return checks
+
+
+def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
+    """The safety gate: each scenario's runs over the seeds must all pass."""
+    if "safety" not in recipe.gates:
+        return []
+    g = recipe.gates["safety"]
+    scenarios = g["scenarios"][:QUICK_SCENARIOS] if quick else g["scenarios"]
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    work = safety_jobs(out, {recipe.name: str(ckpt)}, _seeds(g["seeds"], quick), scenarios, vehicles=(recipe.scenario,), acc=False)
+    if quick:
+        work = [dataclasses.replace(j, duration=QUICK_SECONDS) for j in work]
+    drive_jobs(work, jobs, f"gates {recipe.name}: safety")
+    checks = []
+    for scenario in scenarios:
+        scores = [score_run(j.log) for j in work if j.trajectory == scenario]
+        passed = sum(s["passed"] for s in scores)
+        checks.append(Check("safety", f"{scenario}: runs passed (min gap {min(s['min_gap_m'] for s in scores):.1f} m)",
+                            float(passed), float(len(scores)), passed == len(scores)))  # fmt: skip
+    return checks
+
+
+def _random_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
+    """The held-out random leads: the worst gap RMSE, and no collision."""
+    if "random" not in recipe.gates:
+        return []
+    g = recipe.gates["random"]
+    out = out / "random"
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    work = random_jobs(out, {recipe.name: str(ckpt)}, recipe.scenario, _seeds(g["seeds"], quick), acc=False,
+                       duration=QUICK_SECONDS if quick else None)  # fmt: skip
+    drive_jobs(work, jobs, f"gates {recipe.name}: random")
+    scores = [score_random_run(j, VEHICLES[recipe.scenario], 0.0 if quick else SETTLE_S) for j in work]
+    worst = max(float(s["gap_rmse_55m_m"]) for s in scores)
+    collisions = float(sum(s["collisions"] for s in scores))
+    bound = float(g["max_gap_rmse_m"])
+    return [Check("random", "worst gap RMSE (m)", worst, bound, worst <= bound), Check("random", "collisions", collisions, 0.0, collisions == 0)]
+
+
+def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool = False, jobs: int = 1) -> dict[str, Any]:
+    """Drive ``checkpoint`` through every gate of ``recipe``; write ``out/gates.json``.
+
+    Returns:
+        The report: recipe, its digest, the checkpoint and its SHA-256, each check, and
+        whether all passed.
+
+    Raises:
+        click.ClickException: a run failed or its log is invalid.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    checks = [
+        *_test_checks(recipe, checkpoint, out, quick, jobs),
+        *_safety_checks(recipe, checkpoint, out, quick, jobs),
+        *_random_checks(recipe, checkpoint, out, quick, jobs),
+    ]
+    report = {
+        "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": _sha256(checkpoint),
+        "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
+    }  # fmt: skip
+    (out / "gates.json").write_text(json.dumps(report, indent=1) + "\n")
+    return report
+
+
+def gate_table(report: dict[str, Any]) -> str:
+    """The report as a markdown table, one row per check, and a verdict line."""
+    lines = ["| gate | check | figure | bound | verdict |", "| --- | --- | --- | --- | --- |"]
+    for c in report["checks"]:
+        lines.append(f"| {c['gate']} | {c['what']} | {c['figure']:.3f} | {c['bound']:g} | {'PASS' if c['passed'] else 'FAIL'} |")
+    n = sum(c["passed"] for c in report["checks"])
+    verdict = "PASS" if report["passed"] else "FAIL"
+    note = " (--quick: short runs, figures not meaningful)" if report["quick"] else ""
+    lines.append(f"\n{report['recipe']}: {verdict}, {n}/{len(report['checks'])} checks passed{note}")
+    return "\n".join(lines)
+
+
+@click.command("gates")
+@click.argument("model_or_recipe")
+@click.option("--checkpoint", default=None, type=click.Path(dir_okay=False, exists=True), help="The checkpoint to check. Default: the shipped <models>/<name>.pt (" + MODELS_DEFAULT + ").")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for gates.json and the run logs.")
+@click.option("--quick", is_flag=True, help="Short runs, one seed, two safety scenarios: checks the gates run (tests), not the model.")
+@click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
+def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, jobs: int) -> None:
+    """Check a checkpoint against the gates of a recipe (a model name, or recipes/NAME.toml):
+    print a pass/fail table with the figures and write OUT/gates.json. Exits 1 if a gate fails."""
+    try:
+        recipe = load_recipe(model_or_recipe)
+    except RecipeError as exc:
+        raise click.ClickException(str(exc)) from None
+    ckpt = Path(checkpoint) if checkpoint else models_dir() / f"{recipe.name}.pt"
+    if not ckpt.is_file():
+        raise click.ClickException(f"{ckpt}: no such checkpoint; give --checkpoint")
+    report = evaluate_gates(recipe, ckpt, Path(out), quick=quick, jobs=jobs)
+    click.echo(gate_table(report))
+    click.echo(f"Wrote {out}/gates.json")
+    if not report["passed"]:
+        raise SystemExit(1)

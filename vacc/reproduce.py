@@ -1,0 +1,258 @@
+"""`vacc reproduce`: run a recipe's stages in order, then its gates.
+
+Each stage runs in ``DIR/<stage>/`` and writes one checkpoint, ``DIR/<stage>/<stage>.pt``,
+that records its lineage (``ckpt["lineage"]``: the recipe, its digest, the stage, and its
+parents' SHA-256 (of their files, with their paths relative to the output folder). A finished stage writes ``done.json`` with that file's
+SHA-256 and is skipped when the same command runs again; a train stage stopped half-way
+(Ctrl-C, kill -9) continues from its run folder's ``latest.pt`` with the trainer's own
+bit-exact resume; a surgery stage (average, decide, narrow, export) is quick and simply
+runs again. The run ends with ``DIR/<model>.pt`` and the gate report (``DIR/gates/``).
+
+Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
+(N minus the recipe's seed): the recipe's own seed gives its written seeds, and every
+other N a distinct, equally written-out set.
+
+``--smoke`` runs every stage for a few hundred steps (:func:`smoke_config`) and the gates
+in their quick mode: it checks that a recipe still runs, not what it makes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import shutil
+import signal
+from pathlib import Path
+from typing import Any
+
+import click
+
+from agent_client.errors import ClientError
+from agent_client.rl.checkpoint import (
+    atomic_save,
+    average_policies,
+    digest,
+    export_policy,
+    narrow_policy,
+    read_checkpoint,
+    with_decision,
+)
+from agent_client.rl.config import Config, single_stream_only
+from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
+
+__all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
+
+SEED_STRIDE = 10_000
+"""--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
+
+SMOKE = {"total_steps": 120, "learning_starts": 40, "exploration_steps": 60, "episode_seconds": 3.0, "eval_seconds": 3.0,
+         "eval_every": 0, "checkpoint_every": 40, "buffer_size": 2_000, "target_sync_every": 50, "teacher_steps": 60,
+         "batch_size": 8}  # fmt: skip
+"""What --smoke sets in every train stage (each value at most the recipe's), and one evaluation trajectory."""
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 (hex) of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def weights_sha256(path: Path) -> str:
+    """SHA-256 of a checkpoint's weights alone (:func:`~agent_client.rl.checkpoint.digest` of
+    its ``model``): what a lineage names a parent by, the same wherever the run folder is
+    (the file itself records paths)."""
+    return digest({"model": read_checkpoint(path)["model"]})
+
+
+def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
+    """A train stage's seed for ``--seed replicate`` (see :data:`SEED_STRIDE`)."""
+    return seed + SEED_STRIDE * (replicate - recipe.seed)
+
+
+def smoke_config(cfg: Config) -> Config:
+    """``cfg`` cut to a few hundred steps (:data:`SMOKE`), evaluated on its first trajectory."""
+    small = {k: (min(getattr(cfg, k), v) if getattr(cfg, k) is not None else v) for k, v in SMOKE.items()}
+    return dataclasses.replace(cfg, **small, eval_trajectories=cfg.eval_trajectories[:1])
+
+
+def stamp_lineage(path: Path, lineage: dict[str, Any]) -> None:
+    """Record ``lineage`` in the checkpoint ``path`` (``ckpt["lineage"]``), rewritten atomically
+    with its digest; its loaders ignore the entry."""
+    ckpt = read_checkpoint(path)
+    ckpt["lineage"] = lineage
+    atomic_save({k: v for k, v in ckpt.items() if k != "sha256"}, path)
+
+
+def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str], opts: dict[str, Any]) -> Path:
+    """Run (or resume) a train stage in ``sdir/run``; returns the policy it keeps."""
+    from agent_client.rl.cli import run_files  # the trainer's own list of its files
+
+    cfg = stage_config(stage, inputs)
+    cfg = dataclasses.replace(cfg, seed=shifted_seed(cfg.seed, recipe, opts["seed"]))
+    if opts["smoke"]:
+        cfg = smoke_config(cfg)
+    if opts["servers"] > 1 and single_stream_only(dataclasses.replace(cfg, servers=1)) is None:
+        cfg = dataclasses.replace(cfg, servers=opts["servers"])
+    run = sdir / "run"
+    resume = (run / "latest.pt").is_file()
+    if not resume:
+        for old in run_files(run):  # stopped before its first checkpoint: start it afresh
+            old.unlink()
+    run.mkdir(parents=True, exist_ok=True)
+    if cfg.servers > 1 or opts["ray"]:
+        from agent_client.rl.distributed import train_distributed
+
+        summary = train_distributed(cfg, run, resume=resume, progress=opts["progress"], use_ray=opts["ray"])
+    else:
+        from agent_client.rl.train import train
+
+        summary = train(cfg, run, resume=resume, progress=opts["progress"])
+    if summary.get("stopped"):
+        raise KeyboardInterrupt
+    output = stage.options["output"]
+    if output.startswith("eval:") and not opts["smoke"]:
+        return run / "evals" / f"{output.removeprefix('eval:')}.pt"
+    if output == "best" and (run / "best.pt").is_file():
+        return run / "best.pt"
+    if output == "best" and not opts["smoke"]:
+        raise click.ClickException(f"stage {stage.name}: no evaluation passed, so {run / 'best.pt'} was never written")
+    return run / "latest.pt"  # exported as a policy by the caller (--smoke: for any output)
+
+
+def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:
+    """Run an average, decide, narrow or export stage into ``dst``."""
+    o = stage.options
+    if stage.kind == "average":
+        average_policies([inputs[r] for r in stage_refs(stage)], dst, [float(w) for w in o["weights"]])
+    elif stage.kind == "decide":
+        with_decision(inputs[stage_refs(stage)[0]], dst, o["decision"], float(o["temperature"]), float(o["brake_share"]),
+                      float(o["deadband"]), float(o["smoothing"]), int(o["brake_confirm"]), int(o["full_brake_confirm"]))  # fmt: skip
+    elif stage.kind == "narrow":
+        narrow_policy(inputs[stage_refs(stage)[0]], dst, tuple(o["conv_channels"]), int(o["hidden"]))
+    else:
+        export_policy(inputs[stage_refs(stage)[0]], dst)
+
+
+def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any]) -> dict[str, Any]:
+    """Run one stage (or skip it when its ``done.json`` matches its file); returns its record.
+
+    Raises:
+        click.ClickException: the stage failed.
+    """
+    sdir = out / stage.name
+    dst = sdir / f"{stage.name}.pt"
+    record_file = sdir / "done.json"
+    if record_file.is_file() and dst.is_file():
+        record = json.loads(record_file.read_text())
+        if record.get("sha256") == file_sha256(dst):
+            return record
+    sdir.mkdir(parents=True, exist_ok=True)
+    dst.unlink(missing_ok=True)  # a stage stopped after its write and before done.json: made again, the same
+    inputs = {name: str(out / name / f"{name}.pt") for name in stage_refs(stage)}
+    try:
+        if stage.kind == "train":
+            export_policy(_train_stage(recipe, stage, sdir, inputs, opts), dst)
+        else:
+            _surgery_stage(stage, inputs, dst)
+    except (ClientError, ValueError) as exc:
+        raise click.ClickException(f"stage {stage.name}: {exc}") from None
+    # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by their files'
+    # SHA-256, their paths relative to the output folder, so that any folder records the same.
+    parents = [{"sha256": done[name]["sha256"], "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
+    made = {"recipe": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
+    lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
+    stamp_lineage(dst, lineage)
+    record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst)}
+    record_file.write_text(json.dumps(record, indent=1) + "\n")
+    return record
+
+
+def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
+    """Write ``out/reproduce.json``, or check that the folder is this recipe's run with these options.
+
+    Raises:
+        click.ClickException: ``out`` holds another recipe's or another seed's run.
+    """
+    mine = {"recipe": recipe.name, "recipe_digest": recipe.digest, "seed": opts["seed"], "smoke": opts["smoke"]}
+    marker = out / "reproduce.json"
+    if marker.is_file():
+        theirs = json.loads(marker.read_text())
+        differ = [k for k in mine if theirs.get(k) != mine[k]]
+        if differ:
+            raise click.ClickException(f"{out} holds a run with another {differ[0]} ({theirs.get(differ[0])!r}, here {mine[differ[0]]!r}): give a new --out")
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    marker.write_text(json.dumps(mine, indent=1) + "\n")
+
+
+def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: int = 1, use_ray: bool = False,
+              smoke: bool = False, progress: bool = True, jobs: int = 2) -> dict[str, Any]:  # fmt: skip
+    """Run every stage of ``recipe`` into ``out``, copy the last one's policy to
+    ``out/<model>.pt`` and check it against the gates (``out/gates/gates.json``).
+
+    Returns:
+        The gate report (:func:`vacc.gates.evaluate_gates`).
+
+    Raises:
+        click.ClickException: a stage failed, or ``out`` holds another run.
+    """
+    from vacc.gates import evaluate_gates
+
+    opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress}
+    _check_folder(recipe, out, opts)
+    done: dict[str, dict[str, Any]] = {}
+    for i, stage in enumerate(recipe.stages, 1):
+        if progress:
+            click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
+        done[stage.name] = run_stage(recipe, stage, out, done, opts)
+    last = recipe.stages[-1].name
+    final = out / f"{recipe.name}.pt"
+    shutil.copyfile(out / last / f"{last}.pt", final)
+    return evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """First Ctrl-C: the trainer stops at the next step with a checkpoint. Second: abort."""
+    from agent_client.rl.learner import STOP
+
+    if STOP.is_set():
+        raise SystemExit(128 + signum)
+    STOP.set()
+    click.echo("\nvacc reproduce: stopping after this step with a checkpoint; the same command continues (Ctrl-C again to abort)", err=True)
+
+
+@click.command("reproduce")
+@click.argument("model_or_recipe")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder of the run: one subfolder per stage, the model, the gates.")
+@click.option("--seed", default=None, type=click.IntRange(min=0), help=f"Replicate N: every train stage's seed + {SEED_STRIDE:,} x (N - the recipe's seed). Default: the recipe's seed.")
+@click.option("--servers", default=1, show_default=True, type=click.IntRange(min=1), help="Servers feeding each train stage that the K-stream trainer can run (others run one).")
+@click.option("--ray", "use_ray", is_flag=True, help="Run the train stages' servers and actors as Ray actors (vacc[ray]).")
+@click.option("--smoke", is_flag=True, help="Every stage for a few hundred steps, the gates in quick mode: checks the recipe runs.")
+@click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
+@click.option("--quiet", is_flag=True, help="No progress lines.")
+def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, quiet: bool) -> None:
+    """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
+    order into OUT/<stage>/, then OUT/<model>.pt and its gate report. Stopped at any point
+    (Ctrl-C, kill -9), the same command continues. Exits 1 if a gate fails (not with --smoke)."""
+    from vacc.gates import gate_table
+
+    if servers > 1 and use_ray:
+        raise click.UsageError("give --servers K or --ray, not both")
+    try:
+        recipe = load_recipe(model_or_recipe)
+    except RecipeError as exc:
+        raise click.ClickException(str(exc)) from None
+    signal.signal(signal.SIGINT, _interrupt)
+    try:
+        report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs)
+    except KeyboardInterrupt:
+        click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
+        raise SystemExit(130) from None
+    click.echo(gate_table(report))
+    click.echo(f"Wrote {out}/{recipe.name}.pt and {out}/gates/gates.json")
+    if not report["passed"] and not smoke:
+        raise SystemExit(1)
