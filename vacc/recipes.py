@@ -34,10 +34,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple
-
-import tomllib
 
 from agent_client.rl.config import DECISIONS, Config, ConfigError, config_dict
 from protocol.scenarios import LEAD_SCENARIOS, SCENARIOS
