@@ -25,6 +25,8 @@ COMMANDS = {
     "bench": "vacc.bench:bench",
     "demo": "vacc.demo:demo",
     "evaluate": "vacc.evaluate:evaluate",
+    "video": "vacc.video:video",
+    "plot": "vacc.plot:plot",
 }
 
 
