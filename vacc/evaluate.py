@@ -42,13 +42,13 @@ from vacc.runs import (
     Run,
     drive_jobs,
     log_path,
-    make_videos,
     parse_seeds,
     score_runs,
     seed_text,
 )
 from vacc.safety import run_suite
 from vacc.tables import build_tables
+from vacc.video import make_videos
 
 __all__ = [
     "METHODS", "SUITE_METHODS", "LABELS", "OPTIONAL", "HDM_LABEL", "DEFAULT_VEHICLE", "SUITES", "SUITE_SEEDS",
@@ -295,7 +295,7 @@ def paper_suite(
     named = seeds if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
     drive_jobs(work, jobs, f"evaluate {scenario}" + (f", seeds {seed_text(seeds)}" if multi else ""))
     veh = vehicle or DEFAULT_VEHICLE[scenario]
-    runs = score_runs(out, chosen, veh, settle, named, duration)
+    runs = score_runs(out, chosen, veh, settle, named, duration, ends=True)
     result = build_tables(out, scenario, chosen, labels, veh, settle, named, runs, road, include_early)
     written = _paper_figures(out, runs, labels, scenario, chosen, veh, settle, named, models, duration)
     made = make_videos(work, out, jobs) if videos else {}

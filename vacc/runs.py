@@ -27,7 +27,6 @@ from protocol.scenarios import GAP_LIMIT, TEST_DURATION, TEST_TRAJECTORIES
 
 __all__ = [
     "TRAJECTORIES", "Job", "Run", "EarlyEnd", "early_end", "parse_seeds", "seed_text", "log_path", "run_job", "drive_jobs", "score_runs",
-    "video_job", "make_videos",
 ]  # fmt: skip
 
 TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
@@ -167,41 +166,6 @@ def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
             raise click.ClickException(f"a run failed: {exc}") from None
 
 
-def video_job(job: Job, out: Path) -> tuple[str, str | None]:
-    """Write the video of one driven job (:mod:`vacc.video`): (its log's name, the video's path
-    relative to ``out``, or None for the lead, whose log is not a run of its own to replay)."""
-    from vacc.video import Episode, write_video
-
-    log = Path(job.log)
-    if job.method == "lead":
-        return log.name, None
-    path = Path("videos") / log.with_suffix(".mp4").name
-    write_video(log, out / path, Episode(job.scenario, job.trajectory, job.seed, duration=job.duration, road=job.road))
-    return log.name, str(path)
-
-
-def make_videos(work: list[Job], out: Path, jobs: int) -> dict[str, str]:
-    """One video per run of ``work`` into ``out/videos``, ``jobs`` at a time: log name -> video path (relative to ``out``).
-
-    Raises:
-        click.ClickException: a replay failed or differed from its log.
-    """
-    made: dict[str, str] = {}
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), "videos", unit="run") as bar:
-        futures = [pool.submit(video_job, j, out) for j in work]
-        try:
-            for fut in as_completed(futures):
-                name, path = fut.result()
-                if path is not None:
-                    made[name] = path
-                bar.update(1)
-        except Exception as exc:
-            for f in futures:
-                f.cancel()
-            raise click.ClickException(f"a video failed: {exc}") from None
-    return made
-
-
 def _lead_log(follower: Path, out: Path) -> None:
     # The lead's own run: its speed and acceleration as the "host" of a log.
     with follower.open() as f, out.open("w", newline="\n") as g:
@@ -256,15 +220,16 @@ class Run(NamedTuple):
 
 def score_runs(
     out: Path, methods: Sequence[str], vehicle: str, settle: float = SETTLE_S, seeds: Sequence[int] | None = None,
-    duration: float | None = None,
+    duration: float | None = None, ends: bool = False,
 ) -> list[Run]:  # fmt: skip
     """Read and score every run log of ``out/logs`` that exists (see :func:`log_path`),
-    marking each that ended before ``duration`` (:func:`early_end`).
+    with ``ends``, marking each that ended before ``duration`` (:func:`early_end`).
 
     Args:
         settle: seconds at the start of each run left out of the comfort metrics [s].
         seeds: the seeds of a multi-seed evaluation; None: one seed.
         duration: the runs' ``--duration`` [s]; None: the whole trajectory.
+        ends: mark the early ends (the caller knows the logs were driven for ``duration``).
 
     Raises:
         click.ClickException: a log is invalid.
@@ -279,5 +244,6 @@ def score_runs(
                         log = read_run_log(path)
                     except RunLogError as exc:
                         raise click.ClickException(str(exc)) from None
-                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle), early_end(log, duration)))
+                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle),
+                                    early_end(log, duration) if ends else None))  # fmt: skip
     return runs

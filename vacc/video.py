@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import subprocess
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,11 +27,15 @@ import click
 import numpy as np
 
 from agent_client.launcher import DEFAULT_ROAD, Road, local_server
+from agent_client.progress import progress_bar
 from agent_client.runlog import COLUMNS, format_row, read_card
 from protocol.constants import CAMERA_SIZE
 from protocol.scenarios import TRAJECTORIES
+from vacc.runs import Job
 
-__all__ = ["Episode", "ReplayMismatch", "episode_from_card", "read_rows", "replay", "VideoWriter", "write_video", "video"]
+__all__ = [
+    "Episode", "ReplayMismatch", "episode_from_card", "read_rows", "replay", "VideoWriter", "write_video", "video_job", "make_videos", "video",
+]  # fmt: skip
 
 FPS = 10  # [1/s] one frame per control step: the video plays in simulated real time
 GIF_SCALE = 2  # a GIF frame is 1/GIF_SCALE of the picture each way (a GIF holds every frame in memory)
@@ -242,6 +247,39 @@ def write_video(log: str | Path, out: str | Path, ep: Episode, *, network_zoom: 
     assert writer is not None  # read_rows: at least one row
     writer.close()
     return writer
+
+
+def video_job(job: Job, out: Path) -> tuple[str, str | None]:
+    """Write the video of one driven job (:mod:`vacc.video`): (its log's name, the video's path
+    relative to ``out``, or None for the lead, whose log is not a run of its own to replay)."""
+    log = Path(job.log)
+    if job.method == "lead":
+        return log.name, None
+    path = Path("videos") / log.with_suffix(".mp4").name
+    write_video(log, out / path, Episode(job.scenario, job.trajectory, job.seed, duration=job.duration, road=job.road))
+    return log.name, str(path)
+
+
+def make_videos(work: list[Job], out: Path, jobs: int) -> dict[str, str]:
+    """One video per run of ``work`` into ``out/videos``, ``jobs`` at a time: log name -> video path (relative to ``out``).
+
+    Raises:
+        click.ClickException: a replay failed or differed from its log.
+    """
+    made: dict[str, str] = {}
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), "videos", unit="run") as bar:
+        futures = [pool.submit(video_job, j, out) for j in work]
+        try:
+            for fut in as_completed(futures):
+                name, path = fut.result()
+                if path is not None:
+                    made[name] = path
+                bar.update(1)
+        except Exception as exc:
+            for f in futures:
+                f.cancel()
+            raise click.ClickException(f"a video failed: {exc}") from None
+    return made
 
 
 @click.command("video")
