@@ -319,6 +319,7 @@ def drive_logged(
 
 
 PROGRESS_AFTER = 2.0  # [s] of wall time before a drive's progress bar shows: short runs stay quiet
+PROGRESS_EVERY = 10  # [control steps] between the bar's updates
 
 
 def expected_seconds(episode: DriveEpisode) -> float | None:
@@ -353,7 +354,8 @@ def watchers(episode: DriveEpisode, *, view: bool, progress: bool) -> Callable[[
             ))  # fmt: skip
 
             def advance(obs: dict[str, Any]) -> None:
-                bar.update(max(0.0, float(obs["t"]) - bar.n))
+                if obs["frame"] % PROGRESS_EVERY == 0 or obs["terminated"] or obs["truncated"]:  # a bar update costs more than a step
+                    bar.update(max(0.0, float(obs["t"]) - bar.n))
 
             calls.append(advance)
         if len(calls) <= 1:
