@@ -49,7 +49,10 @@ from protocol.faults import FaultConfig
 from protocol.options import SunElevation
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
+    RANDOM,
     SCENARIOS,
+    TEST_DURATION,
+    TEST_TRAJECTORIES,
     TRAJECTORIES,
     check_initial,
 )
@@ -275,6 +278,7 @@ def drive_logged(
     episode: DriveEpisode, policy: Any, *, server: str | None, server_args: list[str], controller: str, replay: HumanFile | None,
     keyboard: Callable[[float, contextlib.ExitStack], Any] | None, faults: FaultConfig | None, session_options: dict[str, Any],
     checkpoint: str | None, human_file: str | None, server_faults: str | None, log_path: str, record_path: str | None,
+    watch: Callable[[contextlib.ExitStack], Callable[[dict[str, Any]], None] | None] | None = None,
 ) -> tuple[dict[str, Any], DriveSummary]:
     """Open the session, write the card, drive the episode into ``log_path``; the card (its
     end still open) and the summary.
@@ -284,6 +288,8 @@ def drive_logged(
             ``policy`` drives.
         faults: faults injected on the client's sends.
         session_options: the :class:`Session`'s other keywords (give_up, image_format, image_size, key).
+        watch: builds, once the session is open, what sees every observation (the live view,
+            the progress bar), closed by the stack it is given; it only reads them.
 
     Raises:
         click.ClickException: the session failed (the card, once written, says so) or
@@ -316,6 +322,7 @@ def drive_logged(
             summary = drive_episode(
                 session, policy, scenario=ep.scenario, seed=ep.seed, trajectory=ep.trajectory, trace=ep.trace,
                 duration=ep.duration, log=Path(log_path), **start, preroll=0 if ep.cold_start else None,
+                on_step=watch(stack) if watch is not None else None,
             )  # fmt: skip
     except (FatalSessionError, SessionError) as exc:
         if card is None:  # no session, so no card and no log: name none
@@ -328,6 +335,76 @@ def drive_logged(
         raise click.ClickException(f"{exc.filename or log_path}: could not be written: {write_cause(exc)}") from None
     assert card is not None  # written before the episode
     return card, summary
+
+
+PROGRESS_AFTER = 2.0  # [s] of wall time before a drive's progress bar shows: short runs stay quiet
+PROGRESS_EVERY = 10  # [control steps] between the bar's updates
+
+
+def expected_seconds(episode: DriveEpisode) -> float | None:
+    """How long [s] of simulated time the episode runs, where known before it starts (the tests,
+    a random lead, a --duration); None for a lead scenario or a trace (the bar then counts up)."""
+    whole = TEST_DURATION if episode.trajectory in (*TEST_TRAJECTORIES, RANDOM) else None
+    if episode.duration is None:
+        return whole
+    return episode.duration if whole is None else min(episode.duration, whole)
+
+
+def watchers(episode: DriveEpisode, *, view: bool, progress: bool) -> Callable[[contextlib.ExitStack], Callable[[dict[str, Any]], None] | None]:
+    """What sees each observation of a drive: the live view (``--view``) and a progress bar of
+    simulated against wall time (on a terminal, once a run has taken over :data:`PROGRESS_AFTER`)."""
+
+    def build(stack: contextlib.ExitStack) -> Callable[[dict[str, Any]], None] | None:
+        calls: list[Callable[[dict[str, Any]], None]] = []
+        if view:
+            from agent_client.view import LiveView
+
+            live = LiveView(title=f"vacc drive --view: {episode.scenario}/{Path(episode.trajectory).name} (seed {episode.seed})")
+            stack.callback(live.close)
+            calls.append(live)
+        if progress:
+            from agent_client.progress import progress_bar
+
+            total = expected_seconds(episode)
+            shape = "{percentage:3.0f}%|{bar}| {n:.1f}/{total_fmt}" if total is not None else "{n:.1f}"
+            bar = stack.enter_context(progress_bar(
+                total, "drive", unit="s", delay=PROGRESS_AFTER,  # type: ignore[arg-type]
+                bar_format="{desc}: " + shape + " s simulated in {elapsed} wall ({rate_fmt})",
+            ))  # fmt: skip
+
+            def advance(obs: dict[str, Any]) -> None:
+                if obs["frame"] % PROGRESS_EVERY == 0 or obs["terminated"] or obs["truncated"]:  # a bar update costs more than a step
+                    bar.update(max(0.0, float(obs["t"]) - bar.n))
+
+            calls.append(advance)
+        if len(calls) <= 1:
+            return calls[0] if calls else None
+
+        def both(obs: dict[str, Any]) -> None:
+            for call in calls:
+                call(obs)
+
+        return both
+
+    return build
+
+
+def check_view(view: bool, controller: str) -> None:
+    """Refuse ``--view`` before a server is spawned: with the keyboard (it has its own window),
+    without pygame, or without a display (the keyboard driver's one line).
+
+    Raises:
+        click.UsageError, click.ClickException: one line.
+    """
+    if not view:
+        return
+    if controller == "keyboard":
+        raise click.UsageError("--view: the keyboard driver shows its own window; leave --view out")
+    try:
+        require_pygame()
+        require_display()
+    except ClientError as exc:
+        raise click.ClickException(str(exc)) from None
 
 
 def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: str, log_path: str, record_path: str | None) -> None:
@@ -367,6 +444,7 @@ def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: st
 @click.option("--joystick", default=0, show_default=True, type=int, help="--controller keyboard: SDL index of the joystick/wheel whose pedals to read, if plugged in; -1: none.")
 @click.option("--joystick-map", default="throttle=1,brake=2,released=1,pressed=-1,deadzone=0.05", show_default=True, callback=parse_joystick_map, help="Pedal axes and raw travel (G27-style default).")
 @click.option("--window-scale", default=2, show_default=True, type=click.IntRange(1, 4), help="--controller keyboard: zoom of the 400x400 camera image.")
+@click.option("--view", is_flag=True, help="Watch the run in a window: the camera, a head-up strip (speed, set speed, gap, acceleration, force) and a scrolling plot of gap and speed. The log is the same as without it.")
 def drive(
     controller: str,
     server: str | None,
@@ -394,6 +472,7 @@ def drive(
     joystick: int,
     joystick_map: JoystickMap,
     window_scale: int,
+    view: bool,
 ) -> None:
     """Drive one episode with a controller over UDP and write the run log.
 
@@ -405,6 +484,7 @@ def drive(
     Exits non-zero if the server is lost.
     """
     check_start(host_speed, gap, set_speed)
+    check_view(view, controller)
     road = spawned_road(server, traffic, sun_elevation)
     trace = load_lead(trajectory)
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
@@ -418,12 +498,15 @@ def drive(
     realtime = live if realtime is None else realtime
     server_args, key = spawn_args(road, server_faults=server_faults, realtime=realtime, key_file=key_file)
     image_format, image_size = ("rgb", LIVE_IMAGE) if live else camera(policy)  # a DDQN checkpoint's zoom decides
+    if view and image_format == "none":  # a controller that needs no camera: the view shows the full one
+        image_format, image_size = "rgb", LIVE_IMAGE
     episode = DriveEpisode(scenario, trajectory, seed, start, duration, cold_start, trace)
     keyboard = functools.partial(open_keyboard, window_scale=window_scale, joystick=joystick, joystick_map=joystick_map) if live else None
     card, summary = drive_logged(
         episode, policy, server=server, server_args=server_args, controller=controller, replay=replay, keyboard=keyboard,
         faults=faults, session_options={"give_up": give_up, "image_format": image_format, "image_size": image_size, "key": key},
         checkpoint=checkpoint, human_file=human_file, server_faults=server_faults, log_path=log_path, record_path=record_path,
+        watch=watchers(episode, view=view, progress=not live and sys.stderr.isatty()),
     )  # fmt: skip
     write_card(log_path, {**card, "end": dataclasses.asdict(summary)})
     if not quiet:

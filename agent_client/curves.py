@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["read_scalars", "plot_learning_curve", "export_curve"]
+__all__ = ["read_scalars", "plot_learning_curve", "export_curve", "x_extent"]
 
 W, H = 900, 650  # [px] image
 PANEL_H = 250  # [px] each panel's plot area
@@ -70,6 +70,12 @@ def _panel(img: np.ndarray, top: int, x_max: float, y_lo: float, y_hi: float, ti
     return to_px
 
 
+def x_extent(series: dict[str, tuple[np.ndarray, np.ndarray]]) -> float:
+    """The step axis' right end: the last step of any series drawn (training or evaluation), at least 1."""
+    names = ("charts/mean_reward", "eval/gap_rmse_mean_m", "eval/gap_rmse_m")
+    return max([1.0] + [float(series[n][0].max()) for n in names if n in series and len(series[n][0])])
+
+
 def plot_learning_curve(scalars_csv: str | Path, out_png: str | Path, title: str = "", window: int = 20) -> None:
     """Average reward per step of each training episode vs training steps (top), and
     the test evaluation's gap RMSE to 55 m (bottom), as a PNG.
@@ -83,7 +89,7 @@ def plot_learning_curve(scalars_csv: str | Path, out_png: str | Path, title: str
     s = read_scalars(scalars_csv)
     img = np.full((H, W, 3), 255, np.uint8)
     steps, reward = s.get("charts/mean_reward", (np.zeros(0), np.zeros(0)))
-    x_max = max(float(steps.max()) if len(steps) else 1.0, 1.0)
+    x_max = x_extent(s)  # an evaluation after the last training episode stays inside the plot
     to_px = _panel(img, 40, x_max, -1.0, 1.0, title or "training", f"average reward per step (episodes; moving average of {window})")
     if len(steps):
         for p in to_px(steps, reward):

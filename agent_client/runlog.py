@@ -25,11 +25,19 @@ from typing import IO, Any
 
 from agent_client.errors import InputFileError
 
-__all__ = ["COLUMNS", "RunLog", "CARD_VERSION", "card_path", "write_card", "read_card", "file_sha256"]
+__all__ = ["COLUMNS", "format_row", "RunLog", "CARD_VERSION", "card_path", "write_card", "read_card", "file_sha256"]
 
 CARD_VERSION = 1
 
 COLUMNS = ("t", "frame", "v_host", "v_lead", "gap", "accel", "force", "collision", "a_lead")
+
+
+def format_row(obs: dict[str, Any]) -> str:
+    """The :data:`COLUMNS` of one observation as a log row writes them (no newline)."""
+    return (
+        f"{obs['t']!r},{obs['frame']},{obs['v_host']!r},{obs['v_lead']!r},{obs['gap']!r},"
+        f"{obs['accel']!r},{obs['force']!r},{int(obs['collision'])},{obs['a_lead']!r}"
+    )
 
 
 class RunLog:
@@ -64,10 +72,7 @@ class RunLog:
         if self._file is None:
             return
         tail = "".join("," + (repr(extra[i]) if i < len(extra) else "") for i in range(len(self.extra)))
-        self._file.write(
-            f"{obs['t']!r},{obs['frame']},{obs['v_host']!r},{obs['v_lead']!r},{obs['gap']!r},"
-            f"{obs['accel']!r},{obs['force']!r},{int(obs['collision'])},{obs['a_lead']!r}{tail}\n"
-        )
+        self._file.write(f"{format_row(obs)}{tail}\n")
 
 
 def card_path(log: str | Path) -> Path:

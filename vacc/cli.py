@@ -29,6 +29,8 @@ COMMANDS = {
     "gates": "vacc.gates:gates",
     "models": "vacc.models_cmd:models",
     "reproduce": "vacc.reproduce:reproduce_command",
+    "video": "vacc.video:video",
+    "plot": "vacc.plot:plot",
 }
 
 

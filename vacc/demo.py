@@ -3,7 +3,8 @@
 It evaluates every method on the four ICE test trajectories (the paper's Table 3)
 through real simulator processes over UDP and prints the table: the lead, the
 traditional ACC, the Human Driver Model, and each shipped DDQN model that is
-present (a missing one is named, and left out). ``--acc-only`` instead drives the
+present, the eco model included (a missing one is named, and left out). The
+evaluation's folder also holds its figures and ``report.html``. ``--acc-only`` instead drives the
 traditional ACC on one trajectory and scores that one run.
 """
 
@@ -171,12 +172,12 @@ def demo(ctx: click.Context, out: str, models: str, acc_only_: bool, trajectory:
         acc_only(out_dir, trajectory)
         return
     methods = ["lead"]
-    for reward in ("gap", "force"):
+    for reward in ("gap", "force", "eco"):  # the eco model too: the learned policy that beats the ACC's fuel
         path = Path(models) / f"ice-{reward}.pt"
         if path.is_file():
             methods.append(f"ddqn-{reward}")
         else:
-            click.echo(f"note: {path} is not shipped; the {reward}-based DDQN column is left out")
+            click.echo(f"note: {path} is not shipped; the {SHORT[f'ddqn-{reward}'].removeprefix('the ')} column is left out")
     methods += ["acc", "human"]
     click.echo(f"Evaluating {', '.join(methods)} on ICE test-1..test-4 ({duration or 240:g} s each) over UDP...")
     result = ctx.invoke(evaluate, scenario="ice", out=out, models=models, methods=",".join(methods), duration=duration, jobs=jobs)
@@ -185,3 +186,4 @@ def demo(ctx: click.Context, out: str, models: str, acc_only_: bool, trajectory:
         click.echo(line)
     click.echo("")
     click.echo("Reading: " + reading(result, "ice"))
+    click.echo(f"Open {out_dir / 'report.html'} in a browser: every table, every figure and each run's card in one file.")

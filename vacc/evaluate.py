@@ -18,6 +18,7 @@ The runs themselves (jobs, driving, scoring) are :mod:`vacc.runs`.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ from vacc import figures, stats
 from vacc.metrics_cmd import finite_non_negative
 from vacc.paths import MODELS_DEFAULT, models_dir
 from vacc.random_suite import RANDOM_SEEDS, run_random
+from vacc.report import write_report
 from vacc.runs import (
     TRAJECTORIES,
     Job,
@@ -47,6 +49,7 @@ from vacc.runs import (
 )
 from vacc.safety import run_suite
 from vacc.tables import build_tables
+from vacc.video import make_videos
 
 __all__ = [
     "METHODS", "SUITE_METHODS", "LABELS", "OPTIONAL", "HDM_LABEL", "DEFAULT_VEHICLE", "SUITES", "SUITE_SEEDS",
@@ -83,6 +86,37 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
             raise click.BadParameter(f"{path}: no such human-file", param_hint="--human-file")
         files[traj] = path
     return files
+
+
+MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+]*(-[A-Za-z0-9_.+]+)*")  # a log file's stem: logs/<NAME>-test-1.csv
+
+
+def parse_models(values: tuple[str, ...], scenario: str) -> dict[str, str]:
+    """--model NAME=PATH (repeatable): any checkpoint, evaluated as a method named NAME.
+
+    Raises:
+        click.BadParameter: not NAME=PATH, a NAME taken by a method or given twice, no such
+            file, an unreadable checkpoint, or one trained for the other scenario (one line).
+    """
+    models: dict[str, str] = {}
+    for item in values:
+        name, sep, path = item.partition("=")
+        if not sep or not MODEL_NAME.fullmatch(name) or name in METHODS or name in models:
+            why = "is not NAME=PATH" if not sep or not MODEL_NAME.fullmatch(name) else f"names {name!r}, which is taken"
+            raise click.BadParameter(f"{item!r} {why} (NAME: letters, digits, . _ + -; not one of {', '.join(METHODS)})", param_hint="--model")
+        if not Path(path).is_file():
+            raise click.BadParameter(f"{path}: no such checkpoint", param_hint="--model")
+        from agent_client.errors import InputFileError
+        from agent_client.rl.checkpoint import read_checkpoint  # torch only when a model is given
+
+        try:
+            trained = read_checkpoint(path)["config"].get("scenario", "ice")
+        except InputFileError as exc:
+            raise click.BadParameter(str(exc), param_hint="--model") from None
+        if trained != scenario:
+            raise click.BadParameter(f"{path} was trained for the {trained} scenario, not {scenario}: add --scenario {trained}", param_hint="--model")
+        models[name] = path
+    return models
 
 
 def _seed_list(seed: int | None, seeds: str | None, suite: str) -> list[int]:
@@ -188,37 +222,27 @@ def _paper_checkpoints(chosen: list[str], models: Path, scenario: str) -> dict[s
 
 def _paper_figures(
     out: Path, runs: list[Run], labels: dict[str, str], scenario: str, chosen: list[str], vehicle: str, settle: float,
-    seeds: list[int] | None, models: Path,
+    seeds: list[int] | None, models: Path, duration: float | None,
 ) -> list[figures.Written]:  # fmt: skip
     return [
-        *figures.plot_runs(out, runs, labels, scenario),
-        figures.plot_comfort(out, runs, labels, scenario, settle),
-        figures.plot_emissions(out, runs, labels, scenario),
-        figures.plot_headway(out, runs, labels, scenario),
-        figures.plot_pareto(out, scenario, chosen, labels, vehicle, settle, seeds=seeds, runs=runs),
+        *figures.plot_runs(out, runs, labels, scenario, duration=duration),
+        figures.plot_comfort(out, runs, labels, scenario, settle, duration=duration),
+        figures.plot_emissions(out, runs, labels, scenario, duration=duration),
+        figures.plot_headway(out, runs, labels, scenario, duration=duration),
+        figures.plot_pareto(out, scenario, chosen, labels, vehicle, settle, seeds=seeds, runs=runs, duration=duration),
         figures.plot_training(out, models, scenario),
     ]
 
 
-def paper_suite(
-    out: Path, scenario: str, methods: str | None, models: Path, seeds: list[int], *, human_files: tuple[str, ...] = (),
-    vehicle: str | None = None, duration: float | None = None, jobs: int = 1, settle: float = SETTLE_S,
-    cold_start: bool = False, road: Road = DEFAULT_ROAD,
-) -> dict[str, Any]:  # fmt: skip
-    """Every method on test-1..test-4: drive, write table.md/.csv (and stats.csv) and the figures.
-
-    Args:
-        methods: --methods, comma-separated; None: every method whose model is in ``models``.
-        seeds: the episode seeds; over several, the logs are named by seed.
-        duration: drive only this many seconds of each trajectory [s]; None: all of it.
-        settle: seconds at the start of each run left out of the comfort rows [s].
-
-    Returns:
-        The combined metrics per method (see :func:`vacc.tables.build_tables`).
+def _paper_jobs(
+    out: Path, scenario: str, methods: str | None, models: Path, seeds: list[int], human_files: tuple[str, ...],
+    extra: dict[str, str], duration: float | None, cold_start: bool, road: Road, view: bool,
+) -> tuple[list[str], dict[str, str], list[Job]]:  # fmt: skip
+    """The methods (with the --model ones last), their column names and the jobs of the paper suite.
 
     Raises:
         click.BadParameter: an unknown method, a bad --human-file, or one over several seeds.
-        click.ClickException: a model file is missing, or a run failed.
+        click.ClickException: a model file is missing.
     """
     if methods is None:
         methods = ",".join(m for m in METHODS if m not in OPTIONAL or (models / f"{scenario}-{m.removeprefix('ddqn-')}.pt").is_file())
@@ -227,28 +251,64 @@ def paper_suite(
     multi = len(seeds) > 1
     if files and multi:
         raise click.BadParameter("a recorded drive is of one seed; give --human-file with one --seed", param_hint="--human-file")
-    checkpoints = _paper_checkpoints(chosen, models, scenario)
-    labels = dict(LABELS)
+    checkpoints = {**_paper_checkpoints(chosen, models, scenario), **extra}
+    labels = {**LABELS, **{name: name for name in extra}}
     labels["human"] = "Human (recorded)" if files else HDM_LABEL
-    (out / "logs").mkdir(parents=True, exist_ok=True)
-    named = seeds if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
+    chosen += list(extra)
     work = [
-        Job(m, t, scenario, s, str(log_path(out, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None, cold_start, road)
+        Job(m, t, scenario, s, str(log_path(out, m, t, s if multi else None)), duration, checkpoints.get(m), files.get(t) if m == "human" else None,
+            cold_start, road, view)  # fmt: skip
         for m in chosen
         for t in TRAJECTORIES
         for s in seeds
     ]
+    return chosen, labels, work
+
+
+def paper_suite(
+    out: Path, scenario: str, methods: str | None, models: Path, seeds: list[int], *, human_files: tuple[str, ...] = (),
+    vehicle: str | None = None, duration: float | None = None, jobs: int = 1, settle: float = SETTLE_S,
+    cold_start: bool = False, road: Road = DEFAULT_ROAD, extra: dict[str, str] | None = None, include_early: bool = False,
+    view: bool = False, videos: bool = False,
+) -> dict[str, Any]:  # fmt: skip
+    """Every method on test-1..test-4: drive, write table.md/.csv (and stats.csv), the figures and report.html.
+
+    Args:
+        methods: --methods, comma-separated; None: every method whose model is in ``models``.
+        seeds: the episode seeds; over several, the logs are named by seed.
+        duration: drive only this many seconds of each trajectory [s]; None: all of it.
+        settle: seconds at the start of each run left out of the comfort rows [s].
+        extra: --model: method name -> checkpoint, driven beside ``methods``.
+        include_early: keep the runs that ended before their duration in the tables' values.
+        view: watch each run in a window, one at a time.
+        videos: write one video per run into ``out/videos`` (linked from the report).
+
+    Returns:
+        The combined metrics per method (see :func:`vacc.tables.build_tables`).
+
+    Raises:
+        click.BadParameter: an unknown method, a bad --human-file, or one over several seeds.
+        click.ClickException: a model file is missing, or a run failed.
+    """
+    chosen, labels, work = _paper_jobs(out, scenario, methods, models, seeds, human_files, extra or {}, duration, cold_start, road, view)
+    multi = len(seeds) > 1
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    named = seeds if multi else None  # one seed: logs/<method>-<trajectory>.csv as always
     drive_jobs(work, jobs, f"evaluate {scenario}" + (f", seeds {seed_text(seeds)}" if multi else ""))
     veh = vehicle or DEFAULT_VEHICLE[scenario]
-    runs = score_runs(out, chosen, veh, settle, named)
-    result = build_tables(out, scenario, chosen, labels, veh, settle, named, runs, road)
-    written = _paper_figures(out, runs, labels, scenario, chosen, veh, settle, named, models)
+    runs = score_runs(out, chosen, veh, settle, named, duration, ends=True)
+    result = build_tables(out, scenario, chosen, labels, veh, settle, named, runs, road, include_early)
+    written = _paper_figures(out, runs, labels, scenario, chosen, veh, settle, named, models, duration)
+    made = make_videos(work, out, jobs) if videos else {}
+    title = (out / "table.md").read_text().splitlines()[0].lstrip("# ")
+    write_report(out, title=title, figures=[w.name for w in written], runs=runs, jobs=work, labels=labels, scenario=scenario, videos=made)
     click.echo((out / "table.md").read_text().split("\n## The paper")[0].rstrip())
     for w in written:
         if w.empty:
             click.echo(f"{w.name}: nothing to plot: {w.empty}")
     tables = "table.md, table.csv" + (", stats.csv" if multi else "")
-    click.echo(f"\nWrote {out}/{tables}, {', '.join(w.name for w in written)} (.png and .pdf each) and logs/")
+    click.echo(f"\nWrote {out}/{tables}, {', '.join(w.name for w in written)} (.png and .pdf each), report.html"
+               + (", videos/" if made else "") + " and logs/")  # fmt: skip
     return result
 
 
@@ -286,6 +346,26 @@ def random_suite(
     click.echo(f"Wrote {out}/summary.json, random.md and logs/")
 
 
+def _paper_only(suite: str, given: dict[str, Any]) -> None:
+    """Refuse the paper suite's options with another suite, and --view without a window to show.
+
+    Raises:
+        click.BadParameter, click.ClickException: one line.
+    """
+    for option, value in given.items():
+        if value and suite != "paper":
+            raise click.BadParameter(f"{option} works with --suite paper only", param_hint=option)
+    if given.get("--view"):
+        from agent_client.controllers.keyboard import require_display, require_pygame
+        from agent_client.errors import ClientError
+
+        try:
+            require_pygame()
+            require_display()
+        except ClientError as exc:
+            raise click.ClickException(str(exc)) from None
+
+
 @click.command("evaluate")
 @click.option("--scenario", default="ice", show_default=True, type=click.Choice(["ice", "ev"]))
 @click.option("--out", required=True, type=click.Path(file_okay=False), callback=writable_dir_option, help="Folder for tables, figures and run logs.")
@@ -303,10 +383,15 @@ def random_suite(
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
 @click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md).")
+@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper). A checkpoint trained for the other scenario is refused.")
+@click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
+@click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
+@click.option("--videos", is_flag=True, help="Write one video per run into OUT/videos (vacc video), linked from report.html (--suite paper).")
 def evaluate(
     scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None,
     duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool,
-    lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str,
+    lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str, model_files: tuple[str, ...] = (),
+    include_early: bool = False, view: bool = False, videos: bool = False,
 ) -> dict[str, Any] | None:  # fmt: skip
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table; with
@@ -319,6 +404,8 @@ def evaluate(
     if suite == "paper" and road.sun_elevation != SUN_ELEVATION:
         raise click.BadParameter("test-1..test-4 keep a fixed sun; the lead scenarios draw theirs: add --suite safety", param_hint="--sun-elevation")
     leads = _lead_scenarios(lead_scenarios, suite)
+    _paper_only(suite, {"--model": model_files, "--include-early": include_early, "--view": view, "--videos": videos})
+    extra = parse_models(model_files, scenario)
     out_dir, models_path = Path(out), Path(models)
     if suite == "safety":
         # Both vehicles, unless --scenario was given: then that one's ACC and models only.
@@ -331,4 +418,5 @@ def evaluate(
                      settle=settle, cold_start=cold_start, road=road)  # fmt: skip
         return None
     return paper_suite(out_dir, scenario, methods, models_path, seed_list, human_files=human_files, vehicle=vehicle, duration=duration,
-                       jobs=jobs, settle=settle, cold_start=cold_start, road=road)  # fmt: skip
+                       jobs=jobs, settle=settle, cold_start=cold_start, road=road, extra=extra, include_early=include_early,
+                       view=view, videos=videos)  # fmt: skip

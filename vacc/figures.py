@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "STYLE", "Written", "plot_runs", "plot_comfort", "plot_emissions", "plot_headway", "plot_pareto", "plot_training",
-    "smooth", "late_start",
+    "smooth", "late_start", "cut_note", "value_label", "headway_right",
 ]
 
 DESIRED_GAP_M = 55.0  # [m] the paper's target, drawn on the gap figure
@@ -110,6 +110,20 @@ def _message(out: Path, name: str, title: str, text: str) -> Written:
     return Written(_save(fig, out, name).name, text.replace("\n", " "))
 
 
+def cut_note(duration: float | None) -> str:
+    """Words for a title when every run was cut short with ``--duration``: nothing otherwise."""
+    return "" if duration is None else f" [runs cut short: first {duration:g} s of each (--duration {duration:g})]"
+
+
+def value_label(value: float) -> str:
+    """A bar's value as text: three significant digits, never in exponent form (1513, not 1.51e+03)."""
+    if not np.isfinite(value):
+        return "—"
+    if abs(value) >= 100:
+        return f"{value:.0f}"
+    return np.format_float_positional(value, precision=3, unique=False, fractional=False, trim="-")
+
+
 def _seeds_note(runs: Sequence[Run]) -> str:
     seeds = sorted({r.seed for r in runs if r.seed is not None})
     return f"mean of {len(seeds)} seeds, shaded min to max" if len(seeds) > 1 else "one seed"
@@ -124,14 +138,18 @@ def _methods(runs: Sequence[Run], followers: bool = False) -> list[str]:
     return [m for m in seen if not (followers and m == "lead")]
 
 
-def plot_runs(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str) -> list[Written]:
+def plot_runs(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str, *, duration: float | None = None) -> list[Written]:
     """fig_gap and fig_speed: one panel per test trajectory, each follower's mean over seeds
-    with the min-to-max spread shaded; the speed panels add the lead in black."""
+    with the min-to-max spread shaded; the speed panels add the lead in black.
+
+    Args:
+        duration: the runs' ``--duration`` [s], named in the titles; None: whole runs.
+    """
     plt = _plt()
     followers = _methods(runs, followers=True)
     names: list[Written] = []
     for name, column, ylabel in (("fig_gap", "gap", "gap [m]"), ("fig_speed", "v_host", "speed [m/s]")):
-        title = f"{scenario.upper()} {'gap' if column == 'gap' else 'speed'} ({_seeds_note(runs)})"
+        title = f"{scenario.upper()} {'gap' if column == 'gap' else 'speed'} ({_seeds_note(runs)})" + cut_note(duration)
         if not followers:
             names.append(_message(out, name, title, "no follower runs to plot (only the lead, or no logs)"))
             continue
@@ -183,30 +201,33 @@ def _after_settle(run: Run, settle: float) -> tuple[np.ndarray, np.ndarray]:
     return a, jerk
 
 
-def plot_comfort(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str, settle: float = SETTLE_S) -> Written:
+def plot_comfort(
+    out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str, settle: float = SETTLE_S, *, duration: float | None = None,
+) -> Written:
     """fig_comfort: box plots per method, over every run and seed after the first ``settle``
     seconds [s], of the acceleration and of the 1-s mean jerk that ISO 15622 limits;
-    whiskers at the 1st and 99th percentiles.
+    whiskers at the 1st and 99th percentiles, and a sample of the values themselves beside each box.
 
     A DDQN holds its force between decisions, so its step-to-step jerk is mostly zero
     with spikes between; the 1-s mean shows how hard it rides, on the limit's own terms.
+    A box whose quartiles coincide (a force policy that holds one acceleration most of
+    the time) is labelled with the share of time at that value, so it does not read as no data.
+
+    Args:
+        duration: the runs' ``--duration`` [s], named in the title; None: whole runs.
     """
     methods = _methods(runs)
     data = {m: [_after_settle(r, settle) for r in runs if r.method == m] for m in methods}
     accel = {m: np.concatenate([a for a, _ in v]) for m, v in data.items()}
     jerk = {m: np.concatenate([j for _, j in v]) for m, v in data.items()}
     methods = [m for m in methods if jerk[m].size]
-    title = f"{scenario.upper()} comfort after the first {settle:g} s: acceleration and {ISO_JERK_WINDOW_S:g}-s mean jerk"
+    title = f"{scenario.upper()} comfort after the first {settle:g} s: acceleration and {ISO_JERK_WINDOW_S:g}-s mean jerk" + cut_note(duration)
     if not methods:
         return _message(out, "fig_comfort", title, f"no run is longer than the {settle:g} s settle (--settle)")
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(7.2, 3.0))
     for ax, values, ylabel in ((axes[0], accel, "acceleration [m/s²]"), (axes[1], jerk, f"{ISO_JERK_WINDOW_S:g}-s mean jerk [m/s³]")):
-        box = ax.boxplot([values[m] for m in methods], whis=(1, 99), showfliers=False, patch_artist=True, widths=0.6)
-        for patch, m in zip(box["boxes"], methods, strict=True):
-            patch.set(facecolor=_color(m), alpha=0.5)
-        for median in box["medians"]:
-            median.set(color="k")
+        _boxes(ax, [values[m] for m in methods], methods)
         ax.set_xticks(range(1, len(methods) + 1), [labels[m].replace(" (", "\n(") for m in methods], rotation=30, ha="right")
         ax.set_ylabel(ylabel)
     axes[1].set_yscale("symlog", linthresh=0.01)  # a smooth ride's windows are near zero
@@ -214,18 +235,47 @@ def plot_comfort(out: Path, runs: Sequence[Run], labels: dict[str, str], scenari
     axes[1].axhline(ISO_JERK_LIMIT_MPS3, color="k", ls=":", lw=0.8)
     axes[1].annotate(f"ISO 15622 limit {ISO_JERK_LIMIT_MPS3:g} m/s³", xy=(1.0, ISO_JERK_LIMIT_MPS3), xycoords=("axes fraction", "data"),
                      ha="right", va="bottom", fontsize=6)  # fmt: skip
-    fig.suptitle(title + " (box: quartiles, whiskers: 1st to 99th percentile)")
+    fig.suptitle(title + " (box: quartiles, whiskers: 1st to 99th percentile, dots: a sample of the values)")
     fig.tight_layout()
     return _save(fig, out, "fig_comfort")
+
+
+STRIP_POINTS = 300  # values drawn beside each box (an even sample, so the figure is deterministic)
+
+
+def _boxes(ax: Any, values: list[np.ndarray], methods: list[str]) -> None:
+    """Box plots at x = 1, 2, ... with a strip of sampled values beside each, and a label on
+    a box whose quartiles coincide: the share of the values at its median."""
+    box = ax.boxplot(values, whis=(1, 99), showfliers=False, patch_artist=True, widths=0.5)
+    for patch, m in zip(box["boxes"], methods, strict=True):
+        patch.set(facecolor=_color(m), alpha=0.5)
+    for median in box["medians"]:
+        median.set(color="k")
+    for i, (v, m) in enumerate(zip(values, methods, strict=True), start=1):
+        sample = v[np.linspace(0, v.size - 1, min(v.size, STRIP_POINTS)).astype(int)]
+        offsets = 0.3 + 0.08 * ((np.arange(sample.size) * 0.618) % 1.0)  # beside the box, spread without randomness
+        ax.scatter(i + offsets, sample, s=1.5, color=_color(m), alpha=0.5, lw=0, gid=f"strip-{m}")
+        q1, med, q3 = np.percentile(v, [25, 50, 75])
+        if q3 - q1 <= 1e-9:
+            share = 100.0 * np.mean(np.abs(v - med) <= 1e-9)
+            ax.annotate(f"{share:.0f} % at {med:.2g}", (i, med), xytext=(0, 4), textcoords="offset points", ha="center", va="bottom",
+                        fontsize=6, gid=f"collapsed-{m}")  # fmt: skip
 
 
 EMISSIONS = (("co2_g_per_mi", "CO2 [g/mi]"), ("co_g_per_mi", "CO [g/mi]"), ("hc_g_per_mi", "HC [g/mi]"), ("nox_g_per_mi", "NOx [g/mi]"))
 """The ICE emission bars: metric of energy.evaluate_run and axis label."""
 
 
-def plot_emissions(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str) -> Written:
+def plot_emissions(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str, *, duration: float | None = None) -> Written:
     """fig_emissions (ICE: CO2, CO, HC, NOx) or fig_energy (EV): the mean per method over every
-    trajectory and seed, with its 95 % stratified bootstrap interval, on a log axis."""
+    trajectory and seed, with its 95 % stratified bootstrap interval, on a log axis.
+
+    Each bar's value is written upright above it (:func:`value_label`), so narrow bars'
+    labels never run into each other.
+
+    Args:
+        duration: the runs' ``--duration`` [s], named in the title; None: whole runs.
+    """
     name = "fig_emissions" if scenario == "ice" else "fig_energy"
     panels = EMISSIONS if scenario == "ice" else (("energy_kj_per_mi", "energy [kJ/mi]"),)
     methods = _methods(runs)
@@ -243,26 +293,31 @@ def plot_emissions(out: Path, runs: Sequence[Run], labels: dict[str, str], scena
         err = np.array([[e.value - e.low for e in est], [e.high - e.value for e in est]])
         ax.bar(x, values, yerr=err, color=[_color(m) for m in methods], capsize=2, alpha=0.8)
         for xi, v, top in zip(x, values, values + err[1], strict=True):
-            ax.annotate(f"{v:.3g}", (xi, top), ha="center", va="bottom", fontsize=6, xytext=(0, 2), textcoords="offset points")
+            ax.annotate(value_label(v), (xi, top), ha="center", va="bottom", fontsize=6, xytext=(0, 2), textcoords="offset points", rotation=90)
         if np.all(values > 0) and values.max() > LOG_RATIO * values.min():
             ax.set_yscale("log")  # CO and HC can span orders of magnitude between methods
             ax.set_title("log scale", fontsize=7)
-        ax.margins(y=0.15)
+        ax.margins(y=0.3)  # room for the upright labels
         ax.set_ylabel(ylabel)
         ax.set_xticks(x, [labels[m].split(" (")[0] for m in methods], rotation=40, ha="right")
     what = "tailpipe emissions (CMEM)" if scenario == "ice" else "energy (EV eq. 6)"
     seeds = {r.seed for r in runs}
     fig.suptitle(f"{scenario.upper()} {what}, mean of {len(runs) // len(methods)} runs per method"
-                 + (f" ({len(seeds)} seeds × trajectories), 95 % bootstrap interval" if len(seeds) > 1 else ""))
+                 + (f" ({len(seeds)} seeds × trajectories), 95 % bootstrap interval" if len(seeds) > 1 else "") + cut_note(duration))
     fig.tight_layout()
     return _save(fig, out, name)
 
 
-def plot_headway(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str) -> Written:
+def plot_headway(out: Path, runs: Sequence[Run], labels: dict[str, str], scenario: str, *, duration: float | None = None) -> Written:
     """fig_headway: the share of driving time at each time headway (gap / own speed, while
-    moving faster than 0.5 m/s) per follower, over every run and seed."""
+    moving faster than 0.5 m/s) per follower, over every run and seed. The x-axis ends a
+    little past the last headway driven (and past the ACC's time gap), not at the last bin.
+
+    Args:
+        duration: the runs' ``--duration`` [s], named in the title; None: whole runs.
+    """
     followers = _methods(runs, followers=True)
-    title = f"{scenario.upper()} time headway (gap / own speed, while moving)"
+    title = f"{scenario.upper()} time headway (gap / own speed, while moving)" + cut_note(duration)
     edges = np.arange(0.0, HEADWAY_MAX_S + HEADWAY_BIN_S / 2, HEADWAY_BIN_S)
     hists = {}
     for m in followers:
@@ -287,14 +342,21 @@ def plot_headway(out: Path, runs: Sequence[Run], labels: dict[str, str], scenari
     ax.axvline(TIME_GAP_S, color="k", ls=":", lw=0.8, label=f"{TIME_GAP_S:g} s (the ACC's time gap)")
     ax.set(xlabel=f"time headway [s] (last bin: {HEADWAY_MAX_S - HEADWAY_BIN_S:g} s and above)",
            ylabel=f"share of time per {HEADWAY_BIN_S:g} s [%]", title=title)  # fmt: skip
+    ax.set_xlim(0.0, headway_right(edges, list(hists.values())))
     ax.legend()
     fig.tight_layout()
     return _save(fig, out, "fig_headway")
 
 
+def headway_right(edges: np.ndarray, hists: list[np.ndarray]) -> float:
+    """The headway axis' right end [s]: two bins past the last one with time in it, and past the ACC's time gap."""
+    last = max(int(np.flatnonzero(h > 0)[-1]) for h in hists)
+    return float(min(edges[-1], max(edges[last + 1] + 2 * HEADWAY_BIN_S, TIME_GAP_S + 0.5)))
+
+
 def plot_pareto(
     out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str, settle: float = SETTLE_S,
-    *, seeds: Sequence[int] | None = None, runs: Sequence[Run] | None = None,
+    *, seeds: Sequence[int] | None = None, runs: Sequence[Run] | None = None, duration: float | None = None,
 ) -> Written:
     """fig_pareto: gap RMSE against energy, one point per method, coloured by the share of
     1-s windows over ISO 15622's jerk limit; one panel per trajectory and their mean.
@@ -305,6 +367,7 @@ def plot_pareto(
 
     Args:
         runs: the scored runs; default: :func:`vacc.runs.score_runs` on ``out/logs``.
+        duration: the runs' ``--duration`` [s], named in the title; None: whole runs.
     """
     if runs is None:
         runs = score_runs(out, methods, vehicle, settle, seeds)
@@ -344,7 +407,7 @@ def plot_pareto(
     if sc is not None:
         fig.colorbar(sc, ax=axes[0].tolist(), label=f"1-s windows over {ISO_JERK_LIMIT_MPS3:g} m/s³ [%]")
     spread = " (bars: lowest to highest seed)" if any(p.shape[0] > 1 for pts in points.values() for p in pts.values()) else ""
-    fig.suptitle(f"{scenario.upper()}: gap against energy, lower left is better{spread}")
+    fig.suptitle(f"{scenario.upper()}: gap against energy, lower left is better{spread}" + cut_note(duration))
     return _save(fig, out, "fig_pareto")
 
 

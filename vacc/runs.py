@@ -23,9 +23,11 @@ from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.progress import progress_bar
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.metrics import Metrics
-from protocol.scenarios import TEST_TRAJECTORIES
+from protocol.scenarios import GAP_LIMIT, TEST_DURATION, TEST_TRAJECTORIES
 
-__all__ = ["TRAJECTORIES", "Job", "Run", "parse_seeds", "seed_text", "log_path", "run_job", "drive_jobs", "score_runs"]
+__all__ = [
+    "TRAJECTORIES", "Job", "Run", "EarlyEnd", "early_end", "parse_seeds", "seed_text", "log_path", "run_job", "drive_jobs", "score_runs",
+]  # fmt: skip
 
 TRAJECTORIES = TEST_TRAJECTORIES  # the tables are over the paper's test set
 
@@ -81,6 +83,7 @@ class Job:
     human_file: str | None = None
     cold_start: bool = False  # engage a DDQN policy at frame 0, without the camera's pre-roll
     road: Road = DEFAULT_ROAD  # the server's traffic and sun
+    view: bool = False  # watch it in a window (vacc evaluate --view); the log is the same
 
 
 def _controller(job: Job) -> Any:
@@ -95,8 +98,8 @@ def _controller(job: Job) -> Any:
         replay = read_human_file(job.human_file)
         replay.check(scenario=job.scenario, trajectory=job.trajectory, seed=job.seed)
         return make_controller("human-file", human_file=replay, pad="hold")
-    # every ddqn-* job has its checkpoint (the suites give it one)
-    return make_controller("ddqn" if job.method.startswith("ddqn") else job.method, checkpoint=job.checkpoint)
+    # every ddqn-* job has its checkpoint (the suites give it one); so has a --model NAME=PATH
+    return make_controller("ddqn" if job.method.startswith("ddqn") or job.checkpoint else job.method, checkpoint=job.checkpoint)
 
 
 def run_job(job: Job) -> Job:
@@ -112,12 +115,23 @@ def run_job(job: Job) -> Job:
     torch.set_num_threads(1)  # one run per core
     controller = _controller(job)
     image, size = camera(controller)
+    view = None
+    if job.view:
+        from agent_client.view import LiveView
+        from protocol.constants import CAMERA_SIZE
+
+        image, size = ("rgb", CAMERA_SIZE) if image == "none" else (image, size)  # the policy keeps the frames it needs
+        view = LiveView(title=f"vacc evaluate --view: {job.method} on {job.scenario}/{job.trajectory} (seed {job.seed})")
     log = Path(job.log)
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
-    with local_server(*job.road.server_args(), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
-        drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
-                      preroll=0 if job.cold_start else None)  # fmt: skip
+    try:
+        with local_server(*job.road.server_args(), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
+            drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
+                          preroll=0 if job.cold_start else None, on_step=view)  # fmt: skip
+    finally:
+        if view is not None:
+            view.close()
     if job.method == "lead":
         _lead_log(log, Path(job.log))
         log.unlink()
@@ -125,11 +139,21 @@ def run_job(job: Job) -> Job:
 
 
 def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
-    """Drive every job, ``jobs`` at a time (each in its own process with its own server).
+    """Drive every job, ``jobs`` at a time (each in its own process with its own server);
+    jobs with a view one after another in this process.
 
     Raises:
         click.ClickException: a run failed; the others are cancelled.
     """
+    if any(j.view for j in work):  # one window at a time, in this process
+        with progress_bar(len(work), label, unit="run") as bar:
+            for j in work:
+                try:
+                    run_job(j)
+                except Exception as exc:
+                    raise click.ClickException(f"a run failed: {exc}") from None
+                bar.update(1)
+        return
     with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), label, unit="run") as bar:
         futures = [pool.submit(run_job, j) for j in work]
         try:
@@ -153,6 +177,34 @@ def _lead_log(follower: Path, out: Path) -> None:
             g.write(",".join(row[k] for k in reader.fieldnames) + "\n")
 
 
+END_SLACK_S = 0.15  # [s] a run whose last row is within this of its expected end ran to it (rows are 0.1 s apart)
+
+
+class EarlyEnd(NamedTuple):
+    """How and when a run ended before its duration."""
+
+    at: float  # [s] the last row's time
+    expected: float  # [s] when it should have ended
+    how: str  # "collision", "lost the lead (gap past 300 m)" or "stopped"
+
+    def text(self) -> str:
+        return f"{self.how} at {self.at:.1f} s of {self.expected:g} s"
+
+
+def early_end(log: RunLog, duration: float | None = None) -> EarlyEnd | None:
+    """Whether a test run ended before ``duration`` [s] (None: the whole trajectory), and how.
+
+    The log says how from its last row: a collision flagged, a gap past
+    :data:`protocol.scenarios.GAP_LIMIT`, else the run was stopped.
+    """
+    expected = TEST_DURATION if duration is None else min(duration, TEST_DURATION)
+    last = float(log.t[-1])
+    if last >= log.t[0] + expected - END_SLACK_S:
+        return None
+    how = "collision" if log.collision[-1] else f"lost the lead (gap past {GAP_LIMIT:g} m)" if log.gap[-1] > GAP_LIMIT else "stopped"
+    return EarlyEnd(last, expected, how)
+
+
 class Run(NamedTuple):
     """One scored run: a method on a trajectory with one seed."""
 
@@ -162,14 +214,22 @@ class Run(NamedTuple):
     """None: the one seed of a single-seed evaluation (its log has no seed in its name)."""
     log: RunLog
     metrics: Metrics
+    early: EarlyEnd | None = None
+    """Set when the run ended before its duration (:func:`early_end`)."""
 
 
-def score_runs(out: Path, methods: Sequence[str], vehicle: str, settle: float = SETTLE_S, seeds: Sequence[int] | None = None) -> list[Run]:
-    """Read and score every run log of ``out/logs`` that exists (see :func:`log_path`).
+def score_runs(
+    out: Path, methods: Sequence[str], vehicle: str, settle: float = SETTLE_S, seeds: Sequence[int] | None = None,
+    duration: float | None = None, ends: bool = False,
+) -> list[Run]:  # fmt: skip
+    """Read and score every run log of ``out/logs`` that exists (see :func:`log_path`),
+    with ``ends``, marking each that ended before ``duration`` (:func:`early_end`).
 
     Args:
         settle: seconds at the start of each run left out of the comfort metrics [s].
         seeds: the seeds of a multi-seed evaluation; None: one seed.
+        duration: the runs' ``--duration`` [s]; None: the whole trajectory.
+        ends: mark the early ends (the caller knows the logs were driven for ``duration``).
 
     Raises:
         click.ClickException: a log is invalid.
@@ -184,5 +244,6 @@ def score_runs(out: Path, methods: Sequence[str], vehicle: str, settle: float = 
                         log = read_run_log(path)
                     except RunLogError as exc:
                         raise click.ClickException(str(exc)) from None
-                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle)))
+                    runs.append(Run(method, traj, seed, log, evaluate_run(log, vehicle, settle_s=settle),
+                                    early_end(log, duration) if ends else None))  # fmt: skip
     return runs

@@ -30,7 +30,7 @@ from vacc.runs import TRAJECTORIES, Run, score_runs, seed_text
 
 __all__ = [
     "Row", "ICE_ROWS", "EV_ROWS", "DRIVING_ROWS", "COMFORT_ROWS", "PAPER", "Table", "compute_table",
-    "write_table_md", "write_table_csv", "write_stats_csv", "build_tables",
+    "write_table_md", "write_table_csv", "write_stats_csv", "build_tables", "early_lines",
 ]  # fmt: skip
 
 
@@ -135,6 +135,10 @@ class Table:
     settle: float
     """Seconds at the start of each run left out of the comfort rows [s]."""
     road: Road
+    early: tuple[Run, ...] = ()
+    """The runs that ended before their duration (:attr:`vacc.runs.Run.early`)."""
+    include_early: bool = False
+    """Whether ``early`` runs are in ``per`` (and so in every value); by default they are left out."""
 
     @property
     def multi(self) -> bool:
@@ -148,7 +152,7 @@ class Table:
     def _samples(self, method: str, traj: str | None, row: Row) -> list[list[float]]:
         """The row's values, one list (over seeds) per trajectory; None (undefined on a run) left out."""
         per = self.per[method]
-        groups = [[float(r[row.key]) for r in per[t] if r[row.key] is not None] for t in ([traj] if traj else self.trajectories)]  # type: ignore[arg-type]
+        groups = [[float(r[row.key]) for r in per.get(t, []) if r[row.key] is not None] for t in ([traj] if traj else self.trajectories)]  # type: ignore[arg-type]
         return [g for g in groups if g]
 
     def estimate(self, method: str, traj: str | None, row: Row, statistic: stats.Statistic = stats.mean) -> stats.Estimate | None:
@@ -184,15 +188,37 @@ class Table:
 
 def compute_table(
     runs: Sequence[Run], scenario: str, methods: list[str], labels: dict[str, str], vehicle: str,
-    settle: float = SETTLE_S, seeds: Sequence[int] | None = None, road: Road = DEFAULT_ROAD,
+    settle: float = SETTLE_S, seeds: Sequence[int] | None = None, road: Road = DEFAULT_ROAD, include_early: bool = False,
 ) -> Table:  # fmt: skip
-    """The table of ``methods`` over the trajectories every one of them drove in ``runs``."""
+    """The table of ``methods`` over the trajectories every one of them drove in ``runs``.
+
+    A run that ended before its duration (a collision, a lost lead) is left out of every
+    value unless ``include_early``; the table lists it either way.
+    """
     rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS + COMFORT_ROWS
     per: dict[str, dict[str, list[Metrics]]] = {m: {} for m in methods}
+    driven: dict[str, set[str]] = {m: set() for m in methods}
     for run in runs:
-        per[run.method].setdefault(run.trajectory, []).append(run.metrics)
-    trajs = [t for t in TRAJECTORIES if all(t in per[m] for m in methods)]
-    return Table(scenario, methods, labels, vehicle, rows, trajs, per, seeds, settle, road)
+        driven[run.method].add(run.trajectory)
+        if run.early is None or include_early:
+            per[run.method].setdefault(run.trajectory, []).append(run.metrics)
+    trajs = [t for t in TRAJECTORIES if all(t in driven[m] for m in methods)]
+    early = tuple(r for r in runs if r.early is not None)
+    return Table(scenario, methods, labels, vehicle, rows, trajs, per, seeds, settle, road, early, include_early)
+
+
+def early_lines(table: Table) -> list[str]:
+    """table.md's section on the runs that ended before their duration; none when every run ran to its end."""
+    if not table.early:
+        return []
+    kept = "are in every value above (--include-early)" if table.include_early else "are left out of every value above (--include-early keeps them)"
+    lines = [f"## Runs that ended early ({len(table.early)})", "", f"These runs ended before their duration and {kept}.", ""]
+    lines += ["| Method | Trajectory | Seed | How | When (s) | Of (s) |", "| --- | --- | --- | --- | --- | --- |"]
+    for r in table.early:
+        assert r.early is not None
+        seed = "" if r.seed is None else str(r.seed)
+        lines.append(f"| {table.labels[r.method]} | {r.trajectory} | {seed} | {r.early.how} | {r.early.at:.1f} | {r.early.expected:g} |")
+    return lines + [""]
 
 
 def _md_rows(table: Table, traj: str | None, rows: list[Row], statistic: stats.Statistic = stats.mean) -> list[str]:
@@ -249,9 +275,13 @@ def write_table_md(out: Path, table: Table) -> Path:
     model = "CMEM " + table.vehicle if table.scenario == "ice" else "EV eq. 6 " + table.vehicle
     n, seeds = len(table.trajectories), table.seeds
     over = f"{n} trajectories × {len(seeds)} seeds ({seed_text(seeds)})" if table.multi and seeds else f"{n} trajectories"
-    lines = [f"# {table.scenario.upper()} results ({model}), average of {over}{table.road.note()}", ""]
+    flag = ""
+    if table.early:
+        flag = f"; {len(table.early)} run{'s' if len(table.early) > 1 else ''} ended early, " + ("kept" if table.include_early else "left out")
+    lines = [f"# {table.scenario.upper()} results ({model}), average of {over}{table.road.note()}{flag}", ""]
     lines += _md_rows(table, None, table.rows)
     lines += _md_notes(table)
+    lines += early_lines(table)
     lines += _md_paper(table.scenario)
     for traj in table.trajectories:
         lines += [f"## {traj}", ""] + _md_rows(table, traj, table.rows) + [""]
@@ -293,6 +323,7 @@ def write_stats_csv(out: Path, table: Table) -> Path:
 def build_tables(
     out: Path, scenario: str, methods: list[str], labels: dict[str, str], vehicle: str,
     settle: float = SETTLE_S, seeds: Sequence[int] | None = None, runs: list[Run] | None = None, road: Road = DEFAULT_ROAD,
+    include_early: bool = False,
 ) -> dict[str, Any]:
     """Score every log, write table.md/table.csv; returns the combined metrics per method.
 
@@ -305,13 +336,14 @@ def build_tables(
         seeds: the seeds of a multi-seed evaluation; None: one seed.
         runs: the scored runs, if already at hand (:func:`vacc.runs.score_runs`).
         road: the runs' traffic and sun (named in the title unless the default).
+        include_early: keep the runs that ended before their duration in the values.
 
     Raises:
         click.ClickException: a log is invalid (when ``runs`` is None).
     """
     if runs is None:
         runs = score_runs(out, methods, vehicle, settle, seeds)
-    table = compute_table(runs, scenario, methods, labels, vehicle, settle, seeds, road)
+    table = compute_table(runs, scenario, methods, labels, vehicle, settle, seeds, road, include_early)
     write_table_md(out, table)
     write_table_csv(out, table)
     if table.multi:

@@ -208,6 +208,8 @@ class DrivingWindow:
             require_display()
         self.scale = scale
         self.title = title
+        if not has_display():  # offscreen_ok: SDL's dummy driver, not its probing of absent desktops (XDG_RUNTIME_DIR noise)
+            os.environ["SDL_VIDEODRIVER"] = "dummy"
         self.pg.display.init()
         self.pg.font.init()
         self.pg.joystick.init()
