@@ -49,6 +49,11 @@ RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed
 MAX_EPISODE_STEPS = round(max(TEST_DURATION, RANDOM_DURATION, *(s.duration for s in LEAD_SCENARIOS.values())) / CONTROL_PERIOD)
 
 
+def _action_space(action: str, n: int) -> spaces.Space[Any]:
+    """``Box(-1, 1, (n,))`` for a continuous action type (its target force), else ``Discrete(n)``."""
+    return spaces.Box(-1.0, 1.0, (n,), np.float32) if is_continuous(action) else spaces.Discrete(n)
+
+
 class VisionACCEnv(gym.Env):
     """Follow a lead car from a front camera, over a UDP lockstep session.
 
@@ -220,11 +225,7 @@ class VisionACCEnv(gym.Env):
         self.episode_seconds = episode_seconds
         self.render_mode = render_mode
         self.actions = make_action_type(action)
-        self.action_space: spaces.Space[Any]
-        if is_continuous(action):
-            self.action_space = spaces.Box(-1.0, 1.0, (self.actions.n,), np.float32)
-        else:
-            self.action_space = spaces.Discrete(self.actions.n)
+        self.action_space = _action_space(action, self.actions.n)
         observed: dict[str, spaces.Space[Any]] = {
             "frames": spaces.Box(0, 255, (frame_stack, pre.FRAME_H, pre.FRAME_W), np.uint8),
             "speeds": spaces.Box(0.0, MAX_SPEED, (frame_stack,), np.float32),
