@@ -26,6 +26,11 @@ Kept apart from the env and the network, as highway-env keeps ``action.py``.
   brake), and a ramp can hold only a level: a student of the ACC, whose steady following
   needs forces of 0.01-0.06, pulsed between -0.1, 0 and +0.1 (jerk and fuel the ACC does
   not spend). Holding 0.02 or 0.05 lets it follow as gently as its teacher.
+* ``continuous`` (beyond the paper; the actor-critic's, :mod:`agent_client.rl.actor_critic`):
+  the action is itself the target force in [-1, 1], and the held force ramps toward it at
+  the ramp's :data:`RAMP_RATE`, so comfort holds by construction as for ``ramp``; a target
+  at or below :data:`FULL_BRAKE_TARGET` is the full brake, which acts at once as the ramp's
+  does. It observes the held force and the set speed as ``controls``, with the same anti-windup.
 """
 
 from __future__ import annotations
@@ -39,10 +44,11 @@ import numpy as np
 from protocol.constants import A_MAX, A_MIN, FORCE_LEVELS, FORCES, N_ACTIONS
 from protocol.force import accel_of_force
 
-__all__ = ["ACTION_TYPES", "RAMP_ACTIONS", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
+__all__ = ["ACTION_TYPES", "RAMP_ACTIONS", "CONTINUOUS_ACTIONS", "FULL_BRAKE_TARGET", "ContinuousRamp", "is_continuous", "FORCE_STEPS", "CONTROLS", "force_of_accel", "ActionType", "ForceLevels", "ForceSteps", "ForceRamp", "FineRamp", "FINE_LEVELS", "make_action_type"]
 
-ACTION_TYPES = ("levels", "steps", "ramp", "ramp-fine")
+ACTION_TYPES = ("levels", "steps", "ramp", "ramp-fine", "continuous")
 RAMP_ACTIONS = ("ramp", "ramp-fine")  # the types whose actions are target levels of a rate-limited force
+CONTINUOUS_ACTIONS = ("continuous",)  # the types whose action is a float (a Box), not an index
 # Force increments of the "steps" type: fine near zero, one hard brake (a stopped car
 # ahead needs -4 m/s^2 within about 0.3 s), and no hard throttle, which comfort never needs.
 FORCE_STEPS = (-0.5, -0.1, -0.02, 0.0, 0.02, 0.1)
@@ -55,6 +61,9 @@ EMERGENCY_LEVEL = 0  # the "ramp" level that acts at once: the full brake
 # The "ramp-fine" targets: 21 levels as the paper's, from the full brake to full throttle,
 # dense near zero where steady following lives (0.02 of force is 0.07-0.11 m/s^2).
 FINE_LEVELS = (-1.0, -0.8, -0.6, -0.45, -0.3, -0.2, -0.14, -0.09, -0.05, -0.02, 0.0, 0.02, 0.05, 0.09, 0.14, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)
+# The "continuous" type's targets at or below this are the full brake, at once: the actor's
+# tanh output reaches -1 only in the limit, and a target this low asks for it anyway.
+FULL_BRAKE_TARGET = -0.95
 FORCE_GRID = 0.02  # every force the "steps" type holds is a multiple of this
 WINDUP_TOLERANCE = 1e-3  # [m/s^2] achieved acceleration this far short of the command: limited
 
@@ -194,6 +203,38 @@ class FineRamp(ForceRamp):
     levels = FINE_LEVELS
 
 
+class ContinuousRamp(ForceRamp):
+    """A force target in [-1, 1] as the action; the held force ramps toward it as the
+    ramp's does (the same :data:`RAMP_RATE`), but for the full brake, at once."""
+
+    name, n = "continuous", 1  # n: the action's dimension (a Box of one force)
+    levels: Sequence[float] = ()  # no levels: any target
+
+    def _toward(self, target: float) -> float:
+        """One ramp step toward ``target``, unrounded: there are no levels to stay on, and
+        rounding to 0.01 would flip between the two forces either side of a target."""
+        return self.u + _clip(target - self.u, -RAMP_RATE, RAMP_RATE)
+
+    def force(self, action: float) -> float:  # type: ignore[override]
+        """Apply a target force ``action`` (clipped to [-1, 1]); returns the force held."""
+        target = _clip(float(action), -1.0, 1.0)
+        self.u = -1.0 if target <= FULL_BRAKE_TARGET else self._toward(target)
+        return self.u
+
+    def imitate(self, u: float, hard_brake: float = 0.0) -> float:  # type: ignore[override]
+        """A teacher's force ``u`` as the target that asks for it: ``u`` itself, but the full
+        brake only where the teacher decelerates at ``hard_brake`` [m/s^2] or more (0: any)."""
+        u = _clip(float(u), -1.0, 1.0)
+        if u <= FULL_BRAKE_TARGET and -accel_of_force(u) < hard_brake:
+            return FULL_BRAKE_TARGET + 0.01  # the ramp's hardest, not the emergency
+        return u
+
+
+def is_continuous(name: str) -> bool:
+    """Whether the action type ``name`` takes a float target (a ``Box``), not an index."""
+    return name in CONTINUOUS_ACTIONS
+
+
 def _nearest(forces: Sequence[float], nominal: Sequence[float], u: float) -> int:
     """The action whose force is nearest ``u``; ties go to the nominal force nearest ``u``."""
     return min(range(len(forces)), key=lambda a: (round(abs(forces[a] - u), 9), abs(nominal[a] - u)))
@@ -213,4 +254,6 @@ def make_action_type(name: str) -> ActionType:
         return ForceRamp()
     if name == "ramp-fine":
         return FineRamp()
+    if name == "continuous":
+        return ContinuousRamp()
     raise ValueError(f"action type {name!r} is not one of {ACTION_TYPES}")

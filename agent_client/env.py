@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from agent_client import preprocess as pre
-from agent_client.actions import ACTION_TYPES, make_action_type
+from agent_client.actions import ACTION_TYPES, is_continuous, make_action_type
 from agent_client.errors import FatalSessionError
 from agent_client.launcher import local_server
 from agent_client.rewards import (
@@ -49,6 +49,11 @@ RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed
 MAX_EPISODE_STEPS = round(max(TEST_DURATION, RANDOM_DURATION, *(s.duration for s in LEAD_SCENARIOS.values())) / CONTROL_PERIOD)
 
 
+def _action_space(action: str, n: int) -> spaces.Space[Any]:
+    """``Box(-1, 1, (n,))`` for a continuous action type (its target force), else ``Discrete(n)``."""
+    return spaces.Box(-1.0, 1.0, (n,), np.float32) if is_continuous(action) else spaces.Discrete(n)
+
+
 class VisionACCEnv(gym.Env):
     """Follow a lead car from a front camera, over a UDP lockstep session.
 
@@ -64,11 +69,14 @@ class VisionACCEnv(gym.Env):
     :data:`agent_client.actions.RAMP_RATE` per step; the full brake acts at once.
     ``action="ramp-fine"``: the same with :data:`agent_client.actions.FINE_LEVELS` as
     the 21 targets, dense near zero.
+    ``action="continuous"``: ``Box(-1, 1, (1,), float32)``, the target force itself; the
+    held force ramps toward it as ``"ramp"``'s does, and a target at or below
+    :data:`agent_client.actions.FULL_BRAKE_TARGET` (-0.95) is the full brake, at once.
 
     ## Observation space
     ``Dict(frames=Box(0, 255, (8, 105, 150), uint8), speeds=Box(0, 60, (8,), float32))``:
     the last 8 preprocessed camera frames (oldest first, ``stack_stride`` control
-    steps apart) and the host speeds [m/s] at those frames. With a held-force action (``"steps"``, ``"ramp"``, ``"ramp-fine"``),
+    steps apart) and the host speeds [m/s] at those frames. With a held-force action (``"steps"``, ``"ramp"``, ``"ramp-fine"``, ``"continuous"``),
     also ``controls=Box((8, 2), float32)``: at each stacked frame the force then held
     (the agent's own last output) and the cruise set speed [m/s] (the driver's input).
     The gap, the lead's speed and every other privileged quantity are never in the
@@ -155,7 +163,8 @@ class VisionACCEnv(gym.Env):
       reset options added with protocol version 2; ``action="steps"``; colour
       ``rgb_array``, ``human`` rendering and ``max_episode_steps`` (no change to
       observations, rewards or dynamics, so still v0); ``preroll`` (off by default);
-      ``info["reward_terms"]`` (the reward's value unchanged, so still v0).
+      ``info["reward_terms"]`` (the reward's value unchanged, so still v0);
+      ``action="continuous"`` (a new action type; the others unchanged, so still v0).
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": round(1.0 / CONTROL_PERIOD)}
@@ -216,7 +225,7 @@ class VisionACCEnv(gym.Env):
         self.episode_seconds = episode_seconds
         self.render_mode = render_mode
         self.actions = make_action_type(action)
-        self.action_space = spaces.Discrete(self.actions.n)
+        self.action_space = _action_space(action, self.actions.n)
         observed: dict[str, spaces.Space[Any]] = {
             "frames": spaces.Box(0, 255, (frame_stack, pre.FRAME_H, pre.FRAME_W), np.uint8),
             "speeds": spaces.Box(0.0, MAX_SPEED, (frame_stack,), np.float32),
@@ -292,6 +301,11 @@ class VisionACCEnv(gym.Env):
         return observation, info
 
     def step(self, action):
+        if isinstance(self.action_space, spaces.Box):
+            target = np.asarray(action, np.float32).reshape(-1)  # a float or a [1] array
+            if target.shape != (1,) or not self.action_space.contains(target):
+                raise ValueError(f"action {action!r} is not in {self.action_space}")
+            return self._advance(self.actions.force(float(target[0])))
         if not self.action_space.contains(action):
             raise ValueError(f"action {action!r} is not in {self.action_space}")
         return self._advance(self.actions.force(int(action)))

@@ -387,6 +387,44 @@ SIZES = {
 }
 
 
+def actor_critic_rows(z: Sizes) -> dict[str, Any]:
+    """The actor-critic (DrQ-v2, the continuous action) beside SB3's SAC on the same env and
+    trunk: training steps/s, each in its own run of the same steps, and the decision latency
+    beside SAC's ``predict``; each ratio where the peer ran."""
+    from agent_client.bench import ddqn as ddqn_bench
+    from agent_client.rl.config import Config
+    from vacc import bench_sb3
+
+    lat = ddqn_bench.decision_latency(repeats=z.decisions, cfg=Config(action="continuous"))
+    rows: dict[str, Any] = {
+        "drqv2_training": ddqn_bench.training_rate(z.train_steps, z.learning_starts, schedule="serial", action="continuous"),
+        "sb3_sac_peer": bench_sb3.sb3_training_rate_isolated(z.train_steps, z.learning_starts, algo="sac"),
+        "actor_decision_latency": {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}, "forward_ms": lat["forward_median_s"] * 1e3},
+    }
+    peer = bench_sb3.sb3_sac_decision_latency(repeats=z.decisions)
+    rows["sb3_sac_decision_peer"] = peer if "error" in peer else {"ms": {"median": peer["median_s"] * 1e3, "p90": peer["p90_s"] * 1e3}}
+    if "error" not in rows["sb3_sac_peer"]:
+        rows["drqv2_training"]["x_sb3"] = rows["drqv2_training"]["steps_per_s_overall"] / rows["sb3_sac_peer"]["steps_per_s_overall"]
+    if "error" not in rows["sb3_sac_decision_peer"]:
+        rows["actor_decision_latency"]["fraction_of_sb3"] = lat["median_s"] * 1e3 / rows["sb3_sac_decision_peer"]["ms"]["median"]
+    return rows
+
+
+def _actor_critic_lines(f: dict[str, Any]) -> list[str]:
+    """The table's lines of :func:`actor_critic_rows` (none for a bench written before them)."""
+    if "drqv2_training" not in f:
+        return []
+    t, x = f["drqv2_training"], f["drqv2_training"].get("x_sb3")
+    lines = [f"{'DrQ-v2 training (continuous)':34} {t['steps_per_s_overall']:>9.1f} /s {'':>22}  >= 1.5x SB3 SAC" + (f" ({x:.2f}x)" if x else "")]
+    peer = f["sb3_sac_peer"]
+    lines.append(f"{'SB3 SAC, same trunk and env (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['steps_per_s_overall']:>9.1f} /s  (own process, {peer.get('threads', 1)} threads)"))
+    d, frac = f["actor_decision_latency"]["ms"], f["actor_decision_latency"].get("fraction_of_sb3")
+    lines.append(f"{'actor decision latency (1 thread)':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  <= 0.5x SB3 SAC" + (f" ({frac:.2f}x)" if frac else ""))
+    peer = f["sb3_sac_decision_peer"]
+    lines.append(f"{'SB3 SAC predict, same trunk':34} " + (peer["error"] if "error" in peer else f"{peer['ms']['median']:>9.3f} ms {'p90 ' + format(peer['ms']['p90'], '.3f'):>22}  (peer)"))
+    return lines
+
+
 def run_bench(size: str) -> dict[str, Any]:
     """Every figure of the bench at ``size``: a key of :data:`SIZES`."""
     z = SIZES[size]
@@ -430,6 +468,7 @@ def run_bench(size: str) -> dict[str, Any]:
         rows["ddqn_training_parallel"] = ddqn_bench.training_rate(train_steps, starts, schedule="parallel")
         bar.update(1)
         rows["sb3_dqn_peer"] = bench_sb3.sb3_training_rate_isolated(train_steps, starts)
+        rows.update(actor_critic_rows(z))
         bar.update(1)
         rows["replay"] = ddqn_bench.replay_bytes_per_transition()
         rows["sb3_replay_peer"] = bench_sb3.sb3_replay_bytes()
@@ -516,6 +555,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"{label:34} {t['steps_per_s_overall']:>9.1f} /s {'':>22}  >= 1.5x SB3" + (f" ({x:.2f}x)" if x else ""))
     peer = f["sb3_dqn_peer"]
     lines.append(f"{'SB3 DQN, same net and env (peer)':34} " + (peer["error"] if "error" in peer else f"{peer['steps_per_s_overall']:>9.1f} /s  (own process, {peer.get('threads', 1)} threads)"))
+    lines += _actor_critic_lines(f)
     if "to_target" in f:
         r = f["to_target"]
         lines.append(f"{'ice-gap from scratch to target':34} {r['wall_s'] / 60:>9.1f} min {'at step ' + str(r['step']):>21}  <= 30 min" + ("" if r["reached"] else " (NOT reached)"))

@@ -27,6 +27,7 @@ import torch
 
 from agent_client.controllers.ddqn import DDQNController
 from agent_client.preprocess import FRAME_H, FRAME_W, camera_size
+from agent_client.rl.actor_critic import network_of
 from agent_client.rl.config import Config
 from agent_client.rl.network import QNetwork, batch_of_one
 from agent_client.rl.replay import ReplayMemory
@@ -74,7 +75,7 @@ def decision_latency(q: QNetwork | None = None, repeats: int = 300, cfg: Config 
     """
     cfg = cfg if cfg is not None else Config()
     with one_torch_thread():
-        ctl = DDQNController((q if q is not None else QNetwork.of(cfg)).cpu(), cfg)
+        ctl = DDQNController((q if q is not None else network_of(cfg)).cpu(), cfg)  # type: ignore[arg-type]
         width, height = camera_size(cfg.zoom)
         image = np.random.default_rng(0).integers(0, 256, (height, width), dtype=np.uint8)
         obs = {"image": image.tobytes(), "image_shape": [height, width, 1], "v_host": 30.0, "accel": 0.0, "set_speed": cfg.set_speed}
@@ -99,11 +100,12 @@ def model_decision_latency(path: str | Path, repeats: int = 300) -> dict[str, An
     return {**decision_latency(q, repeats, cfg), "model": Path(path).name, "decision": cfg.decision}
 
 
-def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule) -> dict[str, float]:
-    """Training steps/s (act + env step over UDP + a gradient step every 8) with a real server."""
+def training_rate(steps: int = 2000, learning_starts: int = 500, schedule: str = Config.schedule, action: str = Config.action) -> dict[str, float]:
+    """Training steps/s (act + env step over UDP + a gradient step every 8) with a real server;
+    ``action`` "continuous" times the actor-critic (DrQ-v2) instead of the Double DQN."""
     cfg = Config(
         total_steps=steps, learning_starts=learning_starts, train_every=8, buffer_size=max(steps, 1000),
-        eval_trajectories=(), checkpoint_every=10**9, episode_seconds=60.0, schedule=schedule,
+        eval_trajectories=(), checkpoint_every=10**9, episode_seconds=60.0, schedule=schedule, action=action,
     )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

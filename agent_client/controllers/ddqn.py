@@ -9,16 +9,18 @@ import torch
 
 from agent_client.actions import make_action_type
 from agent_client.preprocess import preprocess
+from agent_client.rl.actor_critic import policy_of
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import Decision, Policy, QNetwork, ScaledFrames, batch_of_one
+from agent_client.rl.network import Decision, QNetwork, ScaledFrames, batch_of_one
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
 
 
 class DDQNController:
-    """Greedy DDQN driver (for ``vacc drive`` and ``vacc evaluate``).
+    """Greedy DDQN driver (for ``vacc drive`` and ``vacc evaluate``); with a continuous
+    action's checkpoint, the actor-critic's actor (:mod:`agent_client.rl.actor_critic`).
 
     Keeps its own frame/speed stack with the env's :class:`FrameStacker` (its frames as the
     network's input, :class:`~agent_client.rl.network.ScaledFrames`), so it sees
@@ -42,7 +44,7 @@ class DDQNController:
 
     def __init__(self, q: QNetwork, cfg: Config):
         self.q, self.cfg = q.eval(), cfg
-        self.policy = Policy.of(self.q, cfg)
+        self.policy = policy_of(self.q, cfg)
         self.log_columns: tuple[str, ...] = tuple(c for c, head in (("gap_est", q.gap_head), ("closing_est", q.closing_head)) if head is not None)
         self.log_values: tuple[float, ...] = ()  # of the last decision, one per log column
         self.stacker = FrameStacker(cfg.frame_stack, cfg.stack_stride)
@@ -107,4 +109,6 @@ class DDQNController:
             d = self.policy.decide(q, stacked.get("controls"))
         else:
             d = self.act(stacked)
+        if d.continuous is not None:  # the actor-critic's target force
+            return self.actions.force(d.continuous)  # type: ignore[arg-type]
         return self.actions.force(d.action) if d.target is None else self.actions.force_toward(d.target)  # type: ignore[attr-defined]

@@ -287,16 +287,19 @@ def save_policy(q: QNetwork, cfg: Config, path: str | Path, extra: dict[str, Any
 
 
 def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[QNetwork, Config]:
-    """Load the Q-network of a policy or training checkpoint, in eval mode.
+    """Load the Q-network (or, for a continuous action, the actor-critic) of a policy or
+    training checkpoint, in eval mode.
 
     Raises:
         InputFileError: missing, truncated, corrupt, wrong format/version, or wrong shapes.
     """
+    from agent_client.rl.actor_critic import network_of  # the actor-critic for a continuous action
+
     ckpt = read_checkpoint(path)
     cfg = checkpoint_config(ckpt, path)
-    q = QNetwork.of(cfg)
+    q = network_of(cfg)
     load_weights(q, ckpt["model"], path)
-    return q.to(device).eval(), cfg
+    return q.to(device).eval(), cfg  # type: ignore[return-value]
 
 
 def upgrade(path: str | Path) -> bool:

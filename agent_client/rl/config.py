@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from agent_client.actions import ACTION_TYPES, RAMP_ACTIONS
+from agent_client.actions import ACTION_TYPES, RAMP_ACTIONS, is_continuous
 from agent_client.errors import InputFileError
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import ECO_WEIGHTS, check_eco_weights
@@ -99,7 +99,7 @@ class Config:
     """Eco reward's weights: gap, energy, comfort, closing."""
     action: str = "levels"
     """"levels" (21 forces), "steps" (force increments), "ramp" or "ramp-fine" (rate-limited
-    targets)."""
+    targets); "continuous": a ramped target force, learned by DrQ-v2."""
     train_trajectories: tuple[str, ...] = ("random",)
     """Training leads, one drawn per episode: "random" or lead scenarios (repeat to weight)."""
     train_traffic: int = TRAFFIC_PER_LANE
@@ -215,6 +215,18 @@ class Config:
     """(servers > 1) updates between weight syncs."""
     actor_batch: int = 50
     """(servers > 1) transitions per delivery."""
+    noise_start: float = 1.0
+    """(continuous) exploration noise's std at step 0."""
+    noise_end: float = 0.1
+    """(continuous) its std after exploration_steps."""
+    noise_clip: float = 0.3
+    """(continuous) clip of the target policy's smoothing noise."""
+    critic_tau: float = 0.01
+    """(continuous) share of the critic the target moves each update."""
+    shift_pad: int = 4
+    """(continuous) [px] largest random image shift (0: none)."""
+    bc_steps: int = 0
+    """(continuous, init_from a DQN) steps cloning its decision into the actor."""
 
     def __post_init__(self) -> None:
         for check in SECTION_CHECKS.values():
@@ -243,6 +255,7 @@ SECTIONS: dict[str, tuple[str, ...]] = {
     "decision": ("decision", "decision_temperature", "decision_brake_share", "decision_brake_confirm",
                  "decision_full_brake_confirm", "decision_deadband", "decision_smoothing"),
     "streams": ("servers", "weight_sync_every", "actor_batch"),
+    "actor_critic": ("noise_start", "noise_end", "noise_clip", "critic_tau", "shift_pad", "bc_steps"),
 }  # fmt: skip
 
 
@@ -389,9 +402,20 @@ def check_streams(cfg: Config) -> None:
     _at_least(cfg, SECTIONS["streams"], 1)
 
 
+def check_actor_critic(cfg: Config) -> None:
+    """DrQ-v2's noise, target rate, augmentation and warm start. Raises ConfigError."""
+    _finite_and_not_negative(cfg, ("noise_start", "noise_end", "noise_clip"))
+    if not 0.0 < cfg.critic_tau <= 1.0:
+        raise _bad("critic_tau", f"must be in (0, 1], got {cfg.critic_tau}")
+    if not 0 <= cfg.shift_pad <= 16:
+        raise _bad("shift_pad", f"must be in 0..16 px, got {cfg.shift_pad}")
+    _at_least(cfg, ("bc_steps",), 0)
+
+
 SECTION_CHECKS = {
     "environment": check_environment, "dqn": check_dqn, "network": check_network, "evaluation": check_evaluation,
     "teacher": check_teacher, "auxiliary": check_auxiliary, "decision": check_decision, "streams": check_streams,
+    "actor_critic": check_actor_critic,
 }  # fmt: skip
 
 
@@ -403,6 +427,25 @@ def check_across_sections(cfg: Config) -> None:
         raise _bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
     if cfg.servers != 1 and (needs := single_stream_only(cfg)) is not None:
         raise ConfigError(*needs)
+    check_continuous(cfg)
+
+
+def check_continuous(cfg: Config) -> None:
+    """What the actor-critic (``action`` "continuous") does not do, and what only it does.
+    Raises ConfigError."""
+    if not is_continuous(cfg.action):
+        if cfg.bc_steps > 0:
+            raise _bad("bc_steps", "clones a DQN into the actor-critic's actor: it needs action 'continuous'")
+        return
+    for field, used, what in (
+        ("teacher", cfg.teacher != "none", "a teacher's labels (clone a student with init_from and bc_steps)"),
+        ("aux_gap", cfg.aux_gap > 0.0, "auxiliary heads"), ("aux_closing", cfg.aux_closing > 0.0, "auxiliary heads"),
+        ("brake_margin", cfg.brake_margin > 0.0, "a brake margin"), ("decision", cfg.decision != "argmax", "another decision rule"),
+    ):  # fmt: skip
+        if used:
+            raise _bad(field, f"is not for the actor-critic (action 'continuous'): it has no {what}")
+    if cfg.bc_steps > 0 and cfg.init_from is None:
+        raise _bad("bc_steps", "clones the init_from checkpoint's decision: give init_from")
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:

@@ -29,10 +29,12 @@ import torch
 import torch.nn as nn
 from torch.nn.utils import parameters_to_vector
 
+from agent_client.actions import is_continuous
 from agent_client.controllers.acc import AccController, LateClosing
 from agent_client.errors import InputFileError
 from agent_client.outputs import write_text
 from agent_client.rewards import CONTROL_PERIOD
+from agent_client.rl import actor_critic as ac
 from agent_client.rl.checkpoint import (
     CHECKPOINT_FORMAT,
     CHECKPOINT_VERSION,
@@ -199,11 +201,14 @@ class Learner:
         self.target = self._network()
         self.target.load_state_dict(self.q.state_dict())
         self.acting = self._network().eval() if self.parallel else self.q
-        self.acting_policy = Policy.of(self.acting, cfg)
+        self.acting_policy = ac.policy_of(self.acting, cfg)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.learning_rate, eps=cfg.adam_eps)
         # DAgger: the privileged teacher that labels states (teacher runs only)
         self.teacher = PolicyTeacher(cfg) if cfg.teacher == "policy" else make_teacher(cfg.teacher, cfg.teacher_lag)
-        self.loss_terms = build_terms(cfg, self.q, self.target, self.device)
+        self.continuous = is_continuous(cfg.action)  # the actor-critic (DrQ-v2) instead of the Double DQN
+        self._std = cfg.noise_start  # (actor-critic) the exploration noise's std at the step being learned
+        self.loss_terms = () if self.continuous else build_terms(cfg, self.q, self.target, self.device)  # type: ignore[arg-type]
+        self._main_name = ac.CRITIC_NAME if self.continuous else self.loss_terms[0].name
         self._taken_name = td.VALUES_NAME if self.teacher is None else imitation.LOGIT_NAME
         self.updates = 0
         self.best_score = math.inf
@@ -218,6 +223,8 @@ class Learner:
         else:
             self._init_from()
             self.lineage = self._new_lineage()
+        # (actor-critic, init_from a DQN) the clone of its decision runs before the first update
+        self._bc_pending = self.continuous and cfg.bc_steps > 0 and self.updates == 0
         if self.parallel:
             if not resume:
                 self.acting.load_state_dict(self.q.state_dict())
@@ -241,7 +248,7 @@ class Learner:
         self._eval_env: Any = None
 
     def _network(self) -> QNetwork:
-        return QNetwork.of(self.cfg).to(self.device)
+        return ac.network_of(self.cfg).to(self.device)  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ start
 
@@ -260,7 +267,7 @@ class Learner:
                                  "start from scratch, or learn from it with --teacher policy")  # fmt: skip
         if init_cfg.action == cfg.action and init_q.state_dict().keys() == self.q.state_dict().keys():
             self.q.load_state_dict(init_q.state_dict())
-        else:  # another action set or a gap head added: keep its perception, learn the new output layers
+        else:  # another action set, a gap head added, or a DQN's trunk for the actor-critic (its actor cloned by bc_steps)
             transfer_weights(init_q, self.q)
         self.target.load_state_dict(self.q.state_dict())
 
@@ -342,6 +349,8 @@ class Learner:
         Returns:
             The step's losses when ``log_step`` is given (the loop logs them there).
         """
+        if self.continuous:
+            return self._update_actor_critic(b, log_step)
         dev = self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
         q_all, gap_raw, closing_raw = self.q.with_heads(frames, speeds, controls)  # [B, A], [B] or None each
@@ -357,8 +366,26 @@ class Learner:
         others = {term.name: value.item() for term, value in zip(self.loss_terms[1:], values[1:], strict=True)}
         return UpdateLosses(values[0].item(), q_taken.mean().item(), others)
 
+    def _update_actor_critic(self, b: ReplaySamples, log_step: int | None) -> UpdateLosses | None:
+        """One DrQ-v2 step (:func:`agent_client.rl.actor_critic.update`), its noise at ``_std``."""
+        losses = ac.update(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None)  # type: ignore[arg-type]
+        self.updates += 1
+        return None if losses is None else UpdateLosses(losses.critic, losses.q_values, {ac.ACTOR_NAME: losses.actor})
+
+    def _clone_student(self, memory: ReplayMemory | StreamReplay, step: int) -> None:
+        """The behaviour-cloning warm start: ``bc_steps`` steps of the actor on the
+        ``init_from`` student's decision on replayed frames; the mean error logged at ``step``."""
+        student, student_cfg = load_policy(str(self.cfg.init_from), self.device)
+        errors = [ac.clone_student(self.q, self.optimizer, student, student_cfg, memory.sample(self.cfg.batch_size, self.rng),  # type: ignore[arg-type]
+                                   self.device, self.cfg.max_grad_norm) for _ in range(self.cfg.bc_steps)]  # fmt: skip
+        self.log.add(ac.BC_NAME, float(np.mean(errors)), step)
+        self._bc_pending = False
+
     def sync_target(self) -> None:
-        """Copy the online network into the target network (after any update in flight)."""
+        """Copy the online network into the target network (after any update in flight).
+        The actor-critic's target follows by Polyak averaging in each update instead."""
+        if self.continuous:
+            return
         self._run(lambda: self.target.load_state_dict(self.q.state_dict()))
 
     def train_step(self, memory: ReplayMemory | StreamReplay, step: int) -> None:
@@ -373,6 +400,13 @@ class Learner:
         """
         cfg = self.cfg
         log_step = step if step % cfg.log_every < cfg.train_every else None
+        if self.continuous:
+            self.wait()  # the clone and the noise of the step in flight come first
+            if self._bc_pending:
+                self._clone_student(memory, step)
+                if self.parallel:
+                    self.acting.load_state_dict(self.q.state_dict())
+            self._std = ac.noise_std(cfg, step)
         if self._worker is None:
             self._log_losses(self.update(memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma), log_step), log_step)
             return
@@ -383,7 +417,7 @@ class Learner:
 
     def _pending(self, losses: UpdateLosses | None, step: int | None) -> None:
         if losses is not None and step is not None:  # logged by the loop's thread at the next wait()
-            self._pending_scalars += [(self.loss_terms[0].name, losses.main, step), (self._taken_name, losses.taken, step)]
+            self._pending_scalars += [(self._main_name, losses.main, step), (self._taken_name, losses.taken, step)]
             self._pending_scalars += [(name, value, step) for name, value in losses.terms.items()]
 
     def _log_losses(self, losses: UpdateLosses | None, step: int | None) -> None:
@@ -424,7 +458,7 @@ class Learner:
                 action=cfg.action, eco_weights=cfg.eco_weights, crash_reward=cfg.crash_reward, preroll=cfg.preroll,
             ))  # fmt: skip
         self.q.eval()
-        self.last_eval = evaluate(Policy.of(self.q, cfg), self._eval_env, cfg.eval_trajectories)
+        self.last_eval = evaluate(ac.policy_of(self.q, cfg), self._eval_env, cfg.eval_trajectories)
         self.q.train()
         s = score(self.log, self.last_eval, step)
         if s < self.best_score:

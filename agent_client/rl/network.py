@@ -245,13 +245,17 @@ FIRM_BRAKE = 0.3
 
 class Decision(NamedTuple):
     """What a policy asks of its action type: the argmax ``action``, or, where ``target``
-    is not None, a ramp toward that force (the mean decision)."""
+    is not None, a ramp toward that force (the mean decision), or, where ``continuous`` is
+    not None, the continuous action type's target force (the actor's, which may be the full brake)."""
 
     action: int
     target: float | None = None
+    continuous: float | None = None
 
     def step(self, env: Any) -> Any:
         """Step a :class:`~agent_client.env.VisionACCEnv` with it; the env step's returns."""
+        if self.continuous is not None:
+            return env.step(np.array([self.continuous], np.float32))
         return env.step(self.action) if self.target is None else env.step_toward(self.target)
 
 

@@ -28,7 +28,7 @@ class ReplaySamples(NamedTuple):
     frames: torch.Tensor  # [B, S, H, W] uint8
     speeds: torch.Tensor  # [B, S] float32 [m/s]
     controls: torch.Tensor  # [B, S, C] float32 (C = 0 for the paper's action type)
-    actions: torch.Tensor  # [B] int64
+    actions: torch.Tensor  # [B] int64 (float32: the continuous action type's target forces)
     rewards: torch.Tensor  # [B] float32, the first step's reward
     returns: torch.Tensor  # [B] float32, sum of gamma^k r_k over the m steps summed
     discounts: torch.Tensor  # [B] float32, gamma^m
@@ -68,11 +68,13 @@ class ReplayMemory:
         n_controls: controls per slot (the "steps" action type's force and set speed; 0: none).
         gaps: keep each observation's gap [m] (privileged: the auxiliary gap head's target,
             never part of an observation; ``Config.aux_gap``).
+        continuous: store actions as float32 target forces (the continuous action type),
+            not uint8 indices.
     """
 
     def __init__(
         self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W),
-        n_controls: int = 0, gaps: bool = False,
+        n_controls: int = 0, gaps: bool = False, continuous: bool = False,
     ):  # fmt: skip
         self.capacity, self.frame_stack, self.stack_stride = capacity, frame_stack, stack_stride
         self.frames = np.zeros((capacity, *frame_shape), np.uint8)
@@ -80,7 +82,7 @@ class ReplayMemory:
         self.controls = np.zeros((capacity, n_controls), np.float32)
         self.gaps = np.full(capacity if gaps else 0, np.nan, np.float32)  # [m]
         self.pos = np.zeros(capacity, np.int32)  # step of the slot in its episode
-        self.actions = np.zeros(capacity, np.uint8)
+        self.actions = np.zeros(capacity, np.float32 if continuous else np.uint8)
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.bool_)
         self.truncated = np.zeros(capacity, np.bool_)
@@ -132,7 +134,7 @@ class ReplayMemory:
         self._write(obs, self._warm, gap)
         self._warm = 0
 
-    def add(self, action: int, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
+    def add(self, action: int | float, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
         """Record the transition from the newest slot, and the next observation (with its gap [m])."""
         assert self.total > 0, "start() an episode first"
         j = (self.total - 1) % self.capacity
@@ -296,7 +298,8 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         none = np.full(len(j), np.nan, np.float32)
         gaps.append(memory.gaps[j] if len(memory.gaps) else none)
         next_gaps.append(memory.gaps[(plan.idx + 1) % memory.capacity] if len(memory.gaps) else none)  # a valid start has a next slot
-        fields.append((plan.idx, memory.actions[j].astype(np.int64), memory.rewards[j], plan.ns))
+        actions = memory.actions[j]
+        fields.append((plan.idx, actions if actions.dtype == np.float32 else actions.astype(np.int64), memory.rewards[j], plan.ns))
         start = end
 
     def cat(arrays: list[np.ndarray], dtype: Any = None) -> torch.Tensor:

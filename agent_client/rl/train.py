@@ -1,4 +1,5 @@
-"""Double DQN from pixels, one acting stream: the loop that feeds the :class:`Learner`.
+"""Double DQN (or, for the continuous action, DrQ-v2) from pixels, one acting stream: the
+loop that feeds the :class:`Learner`.
 
 Read top to bottom, as CleanRL's ``dqn_atari.py``: seed and build (the learner),
 then act ε-greedily, store, and take a gradient step every ``train_every`` steps;
@@ -27,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from agent_client.actions import make_action_type
+from agent_client.actions import is_continuous, make_action_type
 from agent_client.launcher import Road
+from agent_client.rl.actor_critic import explore, noise_std
 from agent_client.rl.config import Config
 from agent_client.rl.learner import STOP, Learner, PolicyTeacher
 from agent_client.rl.network import Decision, linear_schedule
@@ -95,7 +97,8 @@ def train(
 
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
-    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps,
+                          continuous=is_continuous(cfg.action))  # fmt: skip
 
     def load_replay(learner: Learner) -> None:
         step = int(learner.saved.get("global_step", 0))
@@ -191,15 +194,19 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     return time.perf_counter() - t_start
 
 
-def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int]:
+def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int | float]:
     """The decision to take and the action to store.
 
+    Actor-critic (a continuous action): the actor's target plus the scheduled Gaussian
+    noise (:func:`agent_client.rl.actor_critic.explore`), stored as taken.
     Double DQN: ε-greedy, stored as taken. With a teacher (DAgger): the teacher's label is
     stored whoever drives; the teacher drives a share β of the steps, falling from 1 to 0
     over ``teacher_steps``, and the ε-greedy student the rest, so that it learns the
     teacher's answer in the states its own mistakes lead to.
     """
     rng = learner.acting_rng
+    if learner.continuous:
+        return explore(learner.acting_policy, obs, noise_std(cfg, step), rng)
     if isinstance(learner.teacher, PolicyTeacher):  # a network on the same observation: distillation
         own, label = learner.teacher.decide(obs, env.actions, cfg.teacher_brake)
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):

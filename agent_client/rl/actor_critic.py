@@ -1,0 +1,330 @@
+"""DrQ-v2 from pixels (Yarats et al. 2021) for the "continuous" action type.
+
+Read top to bottom, as CleanRL's ``sac_continuous_action.py``: the network, the
+augmentation, the exploration noise, the update (critic, then actor, then the critic's
+target), the policy that drives, and the behaviour-cloning warm start from a DQN student.
+The loop, the replay memory, the seeding block, the checkpoints and the scalars are the
+DQN's (:mod:`agent_client.rl.train`, :class:`agent_client.rl.learner.Learner`): only the
+network, the update and how an action is drawn differ.
+
+Why DrQ-v2 rather than SAC-with-DrQ or TD3 (docs/training.md, "The actor-critic"): its
+actor is deterministic, so a decision is one pass of the DQN's own trunk and a tanh (as
+fast as the DQN's argmax); its exploration is a scheduled Gaussian noise drawn from the
+acting generator, so a run stays a function of its seed; it uses n-step returns, which the
+replay memory already computes; and it needs no entropy temperature to tune.
+
+Network: the DQN's convolutions (the same trunk, :class:`~agent_client.rl.network.QNetwork`'s
+layer names, so a DQN checkpoint's perception copies over) feed
+
+* the actor: ``fc`` (hidden, ReLU, 1 output) and a tanh: the target force in [-1, 1];
+* the critic: a ``critic_trunk`` (hidden, LayerNorm, tanh) and two heads ``q1``, ``q2``
+  over (trunk, action) (clipped double Q). Only the critic's gradient trains the
+  convolutions; the actor reads them detached (DrQ-v2).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from agent_client.actions import EMERGENCY_LEVEL, FULL_BRAKE_TARGET, make_action_type
+from agent_client.preprocess import FRAME_H, FRAME_W
+from agent_client.rl.network import FIRM_BRAKE, Decision, batch_of_one, scale_frames
+
+__all__ = ["ActorCritic", "ActorPolicy", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
+           "network_of", "policy_of", "noise_std", "soft_update", "target_of"]
+
+CRITIC_NAME = "losses/critic"
+ACTOR_NAME = "losses/actor"
+VALUES_NAME = "losses/q_values"  # the mean of min(Q1, Q2) at the stored actions
+BC_NAME = "losses/bc"  # the behaviour-cloning warm start's mean squared error
+
+
+# ----------------------------------------------------------------------------- network
+
+
+class ActorCritic(nn.Module):
+    """The DQN's trunk with a deterministic actor and a clipped double-Q critic.
+
+    Args:
+        frame_stack: frames per observation.
+        speed_scale: [m/s] host speed divisor.
+        n_controls: controls per stacked frame (the continuous type's force and set speed).
+        conv_channels: the convolutions' channels.
+        hidden: units of the actor's and the critic's hidden layers.
+    """
+
+    def __init__(self, frame_stack: int = 8, speed_scale: float = 30.0, n_controls: int = 2,
+                 conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256):  # fmt: skip
+        super().__init__()
+        self.speed_scale, self.n_controls = speed_scale, n_controls
+        self._control_scale = torch.tensor([1.0, speed_scale][:n_controls])
+        c1, c2, c3 = conv_channels
+        self.conv = nn.Sequential(
+            nn.Conv2d(frame_stack, c1, 5, stride=4), nn.ReLU(),
+            nn.Conv2d(c1, c2, 4, stride=2), nn.ReLU(),
+            nn.Conv2d(c2, c3, 3, stride=2), nn.ReLU(),
+            nn.Flatten(),
+        )  # fmt: skip
+        with torch.no_grad():
+            n_in = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1] + frame_stack * (1 + n_controls)
+        self.fc = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, 1))  # the actor
+        self.critic_trunk = nn.Sequential(nn.Linear(n_in, hidden), nn.LayerNorm(hidden), nn.Tanh())
+        self.q1 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+        self.q2 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+        self._convs: tuple[nn.Conv2d, ...] = tuple(m for m in self.conv if isinstance(m, nn.Conv2d))
+        self._linears: tuple[nn.Linear, ...] = (self.fc[0], self.fc[2])  # type: ignore[assignment]
+        self.gap_head = self.closing_head = None  # no auxiliary heads (the DDQN controller asks)
+
+    @classmethod
+    def of(cls, cfg: Any) -> ActorCritic:
+        """The network a :class:`~agent_client.rl.config.Config` with a continuous action describes."""
+        return cls(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden)
+
+    @property
+    def device(self) -> torch.device:
+        return self._linears[0].weight.device
+
+    def features(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, n_in]``: the flattened convolutions, the speeds and the controls (the DQN's
+        first fully connected layer's input, computed as it computes it)."""
+        x = frames if frames.is_floating_point() else scale_frames(frames)
+        for conv in self._convs:
+            x = torch.relu(F.conv2d(x, conv.weight, conv.bias, conv.stride))
+        parts = [x.flatten(1), speeds.float() / self.speed_scale]  # [B, 2560], [B, S]
+        if self.n_controls:
+            if controls is None:
+                raise ValueError("this network observes its controls (force, set speed); none were given")
+            scale = self._control_scale.to(controls.device)
+            parts.append((controls.float() / scale).flatten(1))  # [B, S * C]
+        return torch.cat(parts, dim=1)
+
+    def actor(self, z: torch.Tensor) -> torch.Tensor:
+        """``[B]`` the target force in (-1, 1) from features ``z``."""
+        h = torch.relu(F.linear(z, self._linears[0].weight, self._linears[0].bias))
+        return torch.tanh(F.linear(h, self._linears[1].weight, self._linears[1].bias))[:, 0]
+
+    def critic(self, z: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``[B]`` Q1 and Q2 of ``action`` ``[B]`` from features ``z``."""
+        h = torch.cat([self.critic_trunk(z), action[:, None]], dim=1)  # [B, hidden + 1]
+        return self.q1(h)[:, 0], self.q2(h)[:, 0]
+
+    def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, 1]`` the actor's target force: the decision path, one pass as the DQN's."""
+        return self.actor(self.features(frames, speeds, controls))[:, None]
+
+
+# ------------------------------------------------------------------------ augmentation
+
+
+def random_shift(x: torch.Tensor, pad: int) -> torch.Tensor:
+    """DrQ's image augmentation: each stack shifted by up to ``pad`` pixels each way
+    (edges replicated), the same shift for every frame of a stack; from torch's generator.
+
+    Args:
+        x: ``[B, S, H, W]`` float frames.
+        pad: [px] the largest shift (0: none).
+    """
+    if pad == 0:
+        return x
+    B, _, H, W = x.shape
+    padded = F.pad(x, (pad, pad, pad, pad), mode="replicate")  # [B, S, H + 2p, W + 2p]
+    dy, dx = torch.randint(0, 2 * pad + 1, (2, B)).tolist()
+    return torch.stack([padded[i, :, dy[i] : dy[i] + H, dx[i] : dx[i] + W] for i in range(B)])
+
+
+# ------------------------------------------------------------------------- exploration
+
+
+def noise_std(cfg: Any, step: int) -> float:
+    """The exploration noise's standard deviation at env step ``step``: linear from
+    ``noise_start`` to ``noise_end`` over ``exploration_steps`` (DrQ-v2's schedule)."""
+    from agent_client.rl.network import linear_schedule
+
+    return linear_schedule(cfg.noise_start, cfg.noise_end, cfg.exploration_steps, step)
+
+
+def explore(policy: ActorPolicy, obs: dict[str, Any], std: float, rng: np.random.Generator) -> tuple[Decision, float]:
+    """The actor's target plus Gaussian noise of ``std`` from the acting generator, clipped
+    to [-1, 1] and rounded to float32 (what the env applies); the decision and the action to store."""
+    mu = policy.target(obs)
+    a = float(np.float32(min(1.0, max(-1.0, mu + std * float(rng.standard_normal())))))
+    return Decision(0, None, a), a
+
+
+# ------------------------------------------------------------------------------ update
+
+
+class ACLosses(NamedTuple):
+    """What a logged actor-critic step reports (the learner's scalars)."""
+
+    critic: float
+    actor: float
+    q_values: float
+
+
+def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, b: Any, cfg: Any, std: float,
+           device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+    """One DrQ-v2 step on a replay batch: the critic's n-step clipped double-Q loss and the
+    actor's -min(Q1, Q2), summed into one backward and one Adam step (Adam is per tensor, so
+    this is two optimisers at the same rate), then the critic's target moves ``critic_tau``.
+
+    The actor's loss reads the critic's weights detached and the features detached, so its
+    gradient reaches the actor only, and the critic's reaches the critic and the convolutions.
+    """
+    obs = random_shift(scale_frames(b.frames.to(device)), cfg.shift_pad)  # [B, S, H, W]
+    next_obs = random_shift(scale_frames(b.next_frames.to(device)), cfg.shift_pad)
+    z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
+    with torch.no_grad():
+        next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
+        noise = (torch.randn(len(next_z), device=device) * std).clamp(-cfg.noise_clip, cfg.noise_clip)  # [B]
+        next_a = (net.actor(next_z) + noise).clamp(-1.0, 1.0)  # [B] target policy smoothing
+        tq1, tq2 = target.critic(next_z, next_a)
+        done = b.terminated.to(device).float()  # [B]; truncations bootstrap
+        terminal = b.terminal_rewards.to(device) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)
+        y = b.returns.to(device) + b.discounts.to(device) * ((1.0 - done) * torch.min(tq1, tq2) + done * terminal)  # [B]
+    q1, q2 = net.critic(z, b.actions.to(device).float())
+    critic_loss = F.mse_loss(q1, y) + F.mse_loss(q2, y)
+    frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
+    zd = z.detach()
+    pq1, pq2 = _critic_with(net, frozen, zd)
+    actor_loss = -torch.min(pq1, pq2).mean()
+    optimizer.zero_grad()
+    (critic_loss + actor_loss).backward()
+    nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
+    optimizer.step()
+    soft_update(net, target, cfg.critic_tau)
+    if not log:
+        return None
+    return ACLosses(critic_loss.item(), actor_loss.item(), torch.min(q1, q2).mean().item())
+
+
+def _critic_with(net: ActorCritic, frozen: dict[str, torch.Tensor], z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Q1, Q2 of the actor's own action on features ``z``, with the critic's weights ``frozen``."""
+    trunk = F.linear(z, frozen["critic_trunk.0.weight"], frozen["critic_trunk.0.bias"])
+    trunk = torch.tanh(F.layer_norm(trunk, trunk.shape[-1:], frozen["critic_trunk.1.weight"], frozen["critic_trunk.1.bias"]))
+    h = torch.cat([trunk, net.actor(z)[:, None]], dim=1)
+    out = []
+    for head in ("q1", "q2"):
+        x = torch.relu(F.linear(h, frozen[f"{head}.0.weight"], frozen[f"{head}.0.bias"]))
+        out.append(F.linear(x, frozen[f"{head}.2.weight"], frozen[f"{head}.2.bias"])[:, 0])
+    return out[0], out[1]
+
+
+@torch.no_grad()
+def soft_update(net: ActorCritic, target: ActorCritic, tau: float) -> None:
+    """The critic's target moves ``tau`` of the way to the online critic (Polyak)."""
+    online = dict(net.named_parameters())
+    for name, p in target.named_parameters():
+        if name.startswith(("critic_trunk", "q1", "q2")):
+            p.lerp_(online[name], tau)
+
+
+def target_of(net: ActorCritic) -> ActorCritic:
+    """A frozen copy of ``net`` as the critic's target."""
+    t = copy.deepcopy(net)
+    for p in t.parameters():
+        p.requires_grad_(False)
+    return t
+
+
+# ------------------------------------------------------------------------------ policy
+
+
+class ActorPolicy:
+    """The actor's decision: its target force, rounded to float32 as the env applies it
+    (:class:`~agent_client.rl.network.Decision`'s ``continuous``); the full brake where that
+    target is at or below :data:`~agent_client.actions.FULL_BRAKE_TARGET`, by the action type."""
+
+    def __init__(self, net: ActorCritic):
+        self.q = net
+
+    def reset(self) -> None:
+        """No state between decisions."""
+
+    def fresh(self) -> ActorPolicy:
+        return self
+
+    def target(self, obs: dict[str, Any]) -> float:
+        """The actor's target force for one stacked observation."""
+        with torch.inference_mode():
+            return float(self.q(*batch_of_one(self.q, obs["frames"], obs["speeds"], obs.get("controls")))[0, 0])  # type: ignore[arg-type]
+
+    def __call__(self, obs: dict[str, Any]) -> Decision:
+        return Decision(0, None, float(np.float32(self.target(obs))))
+
+    def decide(self, out: torch.Tensor, controls: np.ndarray | None = None) -> Decision:
+        """The decision from the network's output ``[1]`` computed elsewhere."""
+        return Decision(0, None, float(np.float32(float(out[0]))))
+
+
+# ------------------------------------------------------------- warm start from a student
+
+
+@torch.no_grad()
+def student_targets(q: nn.Module, cfg: Any, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None) -> torch.Tensor:
+    """``[B]`` a DQN student's decision as a force target, batched: the full brake where its
+    argmax is the full brake; with the mean decision, the softmax-weighted mean of its other
+    levels at its temperature (no softer than a firm-braking argmax); else its argmax level.
+
+    The per-episode parts of :class:`~agent_client.rl.network.Policy` (brake confirmation,
+    deadband, smoothing) are left out: the clone learns the mean, and the ramp smooths it.
+    """
+    actions = make_action_type(cfg.action)
+    levels = torch.tensor(getattr(actions, "levels", None) or [actions.force(a) for a in range(actions.n)], dtype=torch.float32)
+    out = q(frames, speeds, controls if getattr(q, "n_controls", 0) else None)  # [B, A]
+    top = out.argmax(dim=1)  # [B]
+    if cfg.decision == "mean":
+        keep = torch.ones(len(levels), dtype=torch.bool)
+        keep[EMERGENCY_LEVEL] = False
+        w = torch.softmax(out[:, keep] / cfg.decision_temperature, dim=1)  # [B, A - 1]
+        target = (w * levels[keep]).sum(dim=1)
+        firm = levels[top] <= -FIRM_BRAKE
+        target = torch.where(firm, torch.minimum(target, levels[top]), target)
+    else:
+        target = levels[top]
+    return torch.where(top == EMERGENCY_LEVEL, torch.full_like(target, -1.0), target).clamp(-1.0, 1.0)
+
+
+def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: nn.Module, student_cfg: Any, b: Any,
+                  device: torch.device, max_grad_norm: float) -> float:  # fmt: skip
+    """One behaviour-cloning step: the actor regresses on the student's decision
+    (:func:`student_targets`) on a replay batch; returns the mean squared error.
+
+    The actor's tanh never reaches -1: a full-brake label is asked as the continuous type's
+    :data:`~agent_client.actions.FULL_BRAKE_TARGET`, which brakes fully as well.
+    """
+    frames, speeds, controls = b.frames.to(device), b.speeds.to(device), b.controls.to(device)
+    y = student_targets(student, student_cfg, frames, speeds, controls).clamp(min=FULL_BRAKE_TARGET - 0.01)  # [B]
+    with torch.no_grad():
+        z = net.features(frames, speeds, controls)  # the trunk as copied; the clone trains the actor
+    loss = F.mse_loss(net.actor(z), y)
+    optimizer.zero_grad()
+    loss.backward()
+    nn.utils.clip_grad_norm_(net.parameters(), max_grad_norm)
+    optimizer.step()
+    return loss.item()
+
+
+# ------------------------------------------------------------------ by the config
+
+
+def network_of(cfg: Any) -> nn.Module:
+    """The network a config describes: the actor-critic for a continuous action, else the DQN's."""
+    from agent_client.actions import is_continuous
+    from agent_client.rl.network import QNetwork
+
+    return ActorCritic.of(cfg) if is_continuous(cfg.action) else QNetwork.of(cfg)
+
+
+def policy_of(net: nn.Module, cfg: Any) -> Any:
+    """The decision rule of ``net``: :class:`ActorPolicy` for the actor-critic, else
+    :class:`~agent_client.rl.network.Policy` with the config's rule."""
+    from agent_client.rl.network import Policy
+
+    return ActorPolicy(net) if isinstance(net, ActorCritic) else Policy.of(net, cfg)  # type: ignore[arg-type]
