@@ -63,6 +63,9 @@ def field_docs() -> dict[str, str]:
     return docs
 
 
+MAX_LISTED_CHOICES = 8  # more choices than this show as NAME in --help
+
+
 def option_name(field: str) -> str:
     return "--" + OPTION_NAMES.get(field, field).replace("_", "-")
 
@@ -79,6 +82,8 @@ def _option(f: dataclasses.Field[Any]) -> Callable[[Any], Any]:
         choices = [str(c) for c in CHOICES[name]]
         if not common.get("required"):
             common["default"] = str(default)
+        if len(choices) > MAX_LISTED_CHOICES:  # a long list drowns the help; a wrong name still gets them all
+            common["metavar"] = "NAME"
         return click.option(option_name(name), name, type=click.Choice(choices), **common)
     if kind == "bool":
         flag = OPTION_NAMES.get(name, name).replace("_", "-")

@@ -216,17 +216,17 @@ class Config:
     actor_batch: int = 50
     """(servers > 1) transitions per delivery."""
     noise_start: float = 1.0
-    """(continuous) exploration noise's std at step 0."""
+    """(continuous) exploration noise std at step 0."""
     noise_end: float = 0.1
-    """(continuous) its std after exploration_steps."""
+    """(continuous) that std after exploration_steps."""
     noise_clip: float = 0.3
     """(continuous) clip of the target policy's smoothing noise."""
     critic_tau: float = 0.01
-    """(continuous) share of the critic the target moves each update."""
+    """(continuous) Polyak rate of the critic's target."""
     shift_pad: int = 4
     """(continuous) [px] largest random image shift (0: none)."""
     bc_steps: int = 0
-    """(continuous, init_from a DQN) steps cloning its decision into the actor."""
+    """(continuous) steps cloning the --init-from DQN's decision into the actor."""
 
     def __post_init__(self) -> None:
         for check in SECTION_CHECKS.values():
