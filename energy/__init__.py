@@ -8,6 +8,9 @@ Depends on numpy only and imports no other package of the project.
   with coefficients fitted to VT-CPEM (not the UCR values).
 * :mod:`energy.metrics`: :func:`evaluate_run`, every metric of a run log.
 * :mod:`energy.comfort`: the ISO 15622 window tests and acceleration sign changes.
+* :mod:`energy.string_stability`: a platoon's amplification per pair and lead to last, its
+  speed-to-speed gains (Welch), minimum gaps and TTC, total energy.
+* :mod:`energy.openacc`: the nine OpenACC real-platoon files shipped in ``energy/data/openacc``.
 * :mod:`energy.frontier`: the least eq. 6 energy a follower with preview reaches at a gap error.
 * :mod:`energy.runlog`, :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
 * :func:`write_params`, :func:`data_path`: the fitted parameters in ``energy/data``, for the

@@ -31,6 +31,16 @@ the lead is far, in speed-control mode, and never commands more:
 k_speed = 0.4 1/s is SUMO's ACC speed-control gain (``speedControlGain``, after
 Milanes & Shladover). The set speed comes with every observation; the vehicle's
 own limiter holds it as well.
+
+**String stability.** Linearised about steady following (d_ref = v t_gap, no limit
+active), with gap' = v_lead - v and v' = a_ref, eq. 1-3 give the speed-to-speed
+transfer function (:func:`speed_transfer`)
+
+    H(s) = V(s) / V_lead(s) = (gamma s + beta) / (s^2 + (gamma + beta t_gap) s + beta)
+
+|H(j w)| <= 1 at every w (string stability) iff (gamma + beta t_gap)^2 >= gamma^2 + 2 beta.
+The shipped gains miss it (0.234 < 0.465): the peak gain (:func:`peak_speed_gain`) is
+1.154 at 0.054 Hz, so each car amplifies the lead's slow speed waves by up to 15 %.
 """
 
 from __future__ import annotations
@@ -41,7 +51,7 @@ from typing import Any
 from agent_client.actions import force_of_accel
 from protocol.scenarios import DEFAULT_SET_SPEED
 
-__all__ = ["AccController", "LateClosing", "force_of_accel"]
+__all__ = ["AccController", "LateClosing", "force_of_accel", "speed_transfer", "peak_speed_gain"]
 
 V_STANDING = 0.1  # [m/s] a lead slower than this stands: stop d_safe behind it
 
@@ -95,6 +105,28 @@ class AccController:
             a_safe = min(obs.get("a_lead", 0.0), 0.0) - closing**2 / (2.0 * max(gap - d_aim, 0.1))
             a_ref = min(a_ref, a_safe)
         return force_of_accel(a_ref)
+
+
+def speed_transfer(law: AccController, omega: float) -> complex:
+    """H(j omega) = V/V_lead of the linearised law at angular frequency ``omega`` [rad/s] (module docstring)."""
+    s = 1j * omega
+    return (law.gamma * s + law.beta) / (s * s + (law.gamma + law.beta * law.t_gap) * s + law.beta)
+
+
+def peak_speed_gain(law: AccController) -> tuple[float, float]:
+    """(omega [rad/s], |H|) at the peak of |H(j omega)| over omega > 0; (0, 1) when string-stable.
+
+    With x = omega^2, d|H|^2/dx = 0 at gamma^2 x^2 + 2 beta^2 x - beta^2 c = 0, where
+    c = gamma^2 + 2 beta - (gamma + beta t_gap)^2; a positive root exists iff c > 0.
+    """
+    b, g = law.beta, law.gamma
+    c = g * g + 2.0 * b - (g + b * law.t_gap) ** 2
+    if c <= 0.0:
+        return 0.0, 1.0  # |H| falls from 1 at omega = 0
+    # The quadratic's positive root; without gamma it degenerates to 2 beta^2 x = beta^2 c.
+    x = c / 2.0 if g == 0.0 else b * (-b + (b * b + g * g * c) ** 0.5) / (g * g)
+    omega = x**0.5
+    return omega, abs(speed_transfer(law, omega))
 
 
 @dataclass

@@ -56,7 +56,7 @@ def test_a_script_says_at_its_top_what_it_answers_and_how_to_run_it(script):
 
 
 def test_every_script_has_a_run_test_here():
-    tested = {"calibrate_cmem.py", "energy_frontier.py", "fit_ev_model.py", "reward_ablation.py"}
+    tested = {"calibrate_cmem.py", "energy_frontier.py", "fit_ev_model.py", "openacc_platoons.py", "reward_ablation.py"}
     assert {p.name for p in SCRIPTS} == tested
 
 
@@ -111,3 +111,14 @@ def test_energy_frontier_on_one_episode_and_a_one_point_grid(tmp_path):
     rows = [line.split("  ")[0] for line in result.stdout.splitlines()]
     assert {"acc", "law beta 0.1 gamma 0.5", "preview lam 1"} <= set(rows)
     assert "x1.000 of the ACC" in result.stdout
+
+
+@pytest.mark.slow  # about a minute: ten followers fitted
+def test_openacc_platoons_on_one_file(tmp_path):
+    out = run("openacc_platoons.py", "--files", "long_setting_dynamic_part19.csv", "--calibrate", "--figures", str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    rows = out.stdout.splitlines()
+    assert rows[1].startswith("long_setting_dynamic_part19.csv,11,1.12,1.09,")  # the real platoon, whole run and after a fifth
+    fits = [r.split(",") for r in rows[3:]]
+    assert len(fits) == 10 and sum(float(f[6]) < 2.0 for f in fits) >= 3  # at least three followers within 2 m RMSE
+    assert (tmp_path / "long_setting_dynamic_part19_time_space.png").exists()
