@@ -101,7 +101,8 @@ def _lineage_lines(summary: dict[str, Any]) -> list[str]:
         lines.append("  parents  none (trained from scratch)")
     for parent in lineage["parents"]:
         role = f" as {parent['role']}" if parent.get("role") else ""
-        lines.append(f"  parent   {parent['sha256']}{role} (was {parent['path']})")
+        of = " (its weights)" if parent.get("digest_of") == "weights" else ""
+        lines.append(f"  parent   {parent['sha256']}{of}{role} (was {parent['path']})")
     return lines
 
 

@@ -2,7 +2,7 @@
 
 Each stage runs in ``DIR/<stage>/`` and writes one checkpoint, ``DIR/<stage>/<stage>.pt``,
 that records its lineage (``ckpt["lineage"]``: the recipe, its digest, the stage, and its
-parents' SHA-256 (of their files, with their paths relative to the output folder). A finished stage writes ``done.json`` with that file's
+parents' SHA-256 (of their weights, with their paths relative to the output folder). A finished stage writes ``done.json`` with that file's
 SHA-256 and is skipped when the same command runs again; a train stage stopped half-way
 (Ctrl-C, kill -9) continues from its run folder's ``latest.pt`` with the trainer's own
 bit-exact resume; a surgery stage (average, decide, narrow, export) is quick and simply
@@ -160,10 +160,11 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
             _surgery_stage(stage, inputs, dst)
     except (ClientError, ValueError) as exc:
         raise click.ClickException(f"stage {stage.name}: {exc}") from None
-    # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by their files'
-    # SHA-256, their paths relative to the output folder, so that any folder records the same.
-    parents = [{"sha256": done[name]["sha256"], "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
-    made = {"recipe": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
+    # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by the SHA-256 of
+    # their weights (their files also record paths) and by their paths relative to the output
+    # folder, so that a run records the same lineage in any folder.
+    parents = [{"sha256": done[name]["weights_sha256"], "digest_of": "weights", "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
+    made = {"name": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
     lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
     stamp_lineage(dst, lineage)
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst)}

@@ -91,6 +91,7 @@ class Parent(_ParentFile, total=False):
     """A file a checkpoint was made from: its SHA-256 identifies it, its path only hints."""
 
     role: str
+    digest_of: str  # "weights": the SHA-256 is of its weights alone (vacc reproduce), else of the file
 
 
 class Lineage(TypedDict):
