@@ -10,7 +10,7 @@ id, and ``gym.make`` imports it::
 from __future__ import annotations
 
 import contextlib
-import warnings
+import logging
 from typing import Any
 
 import gymnasium as gym
@@ -43,6 +43,7 @@ from protocol.scenarios import (
 __all__ = ["VisionACCEnv", "FORCES", "N_ACTIONS", "MAX_SPEED", "ENV_ID", "MAX_EPISODE_STEPS"]
 
 ENV_ID = "vacc/VisionACC-v0"
+log = logging.getLogger("vacc.env")
 RESET_OPTIONS = frozenset({"seed", "trajectory", "host_speed", "gap", "set_speed"})
 # The longest named trajectory (the 240 s tests and random episodes) in control steps:
 # gym.make's TimeLimit, a backstop the server's own truncation reaches at the same step.
@@ -206,12 +207,8 @@ class VisionACCEnv(gym.Env):
             from agent_client.controllers.keyboard import has_display, require_pygame
 
             require_pygame()
-            if not has_display():  # the agent drives, so no error (check_env tries every mode headless)
-                warnings.warn(
-                    "render_mode='human' without a display (DISPLAY, WAYLAND_DISPLAY): the window is "
-                    "drawn offscreen, unseen; set SDL_VIDEODRIVER=dummy to say that is meant",
-                    stacklevel=2,
-                )
+            if not has_display():  # the agent drives, so no error; and no warning: check_env tries every mode headless
+                log.info("render_mode='human' without a display (DISPLAY, WAYLAND_DISPLAY): the window is drawn offscreen, unseen")
         image_size = pre.camera_size(zoom)  # checks zoom
         self.preroll = (frame_stack - 1) * stack_stride if preroll else 0
         self.zoom = zoom
