@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from proctools import reap_job
 
 from vacc.recipes import RECIPES_DIR
 from vacc.reproduce import SEED_STRIDE, shifted_seed
@@ -31,10 +32,21 @@ def _finish(proc: subprocess.Popen, timeout: float = 600) -> str:
     try:
         out, _ = proc.communicate(timeout=timeout)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        reap_job(proc, group=True)
     return out
+
+
+SHARED = "ev-force"  # its smoke run serves both its own test and the kill test's uninterrupted run
+ONE_WORKER = pytest.mark.xdist_group("reproduce-ev-force")  # so that they share it under xdist
+
+
+@pytest.fixture(scope="module")
+def shared_smoke(tmp_path_factory) -> tuple[Path, int, str]:
+    """The uninterrupted smoke run of :data:`SHARED`: its folder, exit code and output."""
+    out = tmp_path_factory.mktemp("whole")
+    proc = _reproduce(SHARED, out)
+    text = _finish(proc)
+    return out, proc.returncode, text
 
 
 def test_seed_shift_rule():
@@ -45,11 +57,15 @@ def test_seed_shift_rule():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", RECIPES)
-def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path):
-    proc = _reproduce(name, tmp_path)
-    out = _finish(proc)
-    assert proc.returncode == 0, out[-2000:]
+@pytest.mark.parametrize("name", [pytest.param(n, marks=ONE_WORKER) if n == SHARED else n for n in RECIPES])
+def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path, request):
+    if name == SHARED:
+        tmp_path, returncode, out = request.getfixturevalue("shared_smoke")
+    else:
+        proc = _reproduce(name, tmp_path)
+        out = _finish(proc)
+        returncode = proc.returncode
+    assert returncode == 0, out[-2000:]
     model = torch.load(tmp_path / f"{name}.pt", weights_only=True)
     made = model["lineage"]["recipe"]
     assert made["name"] == name and len(made["digest"]) == 64 and made["stage"] and made["smoke"]
@@ -61,11 +77,12 @@ def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
-    whole, killed = tmp_path / "whole", tmp_path / "killed"
-    proc = _reproduce("ev-force", whole)
-    assert proc.wait(timeout=600) == 0 or pytest.fail(_finish(proc))
-    proc = _reproduce("ev-force", killed)
+@ONE_WORKER
+def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path, shared_smoke):
+    whole, returncode, out = shared_smoke
+    assert returncode == 0, out[-2000:]
+    killed = tmp_path / "killed"
+    proc = _reproduce(SHARED, killed)
     latest = killed / "ev-gap" / "run" / "latest.pt"  # the second stage has checkpointed: it is half-way
     deadline = time.monotonic() + 300
     while not latest.exists() and proc.poll() is None and time.monotonic() < deadline:
@@ -74,11 +91,11 @@ def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     assert not (killed / "ev-gap" / "done.json").exists()
-    proc = _reproduce("ev-force", killed)
+    proc = _reproduce(SHARED, killed)
     out = _finish(proc)
     assert proc.returncode == 0, out[-2000:]
-    a = torch.load(whole / "ev-force.pt", weights_only=True)
-    b = torch.load(killed / "ev-force.pt", weights_only=True)
+    a = torch.load(whole / f"{SHARED}.pt", weights_only=True)
+    b = torch.load(killed / f"{SHARED}.pt", weights_only=True)
     assert a["model"].keys() == b["model"].keys()
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
     assert a["lineage"] == b["lineage"]
