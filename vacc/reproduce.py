@@ -46,9 +46,9 @@ __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_see
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
 
-SMOKE = {"total_steps": 80, "learning_starts": 40, "exploration_steps": 60, "episode_seconds": 3.0, "eval_seconds": 1.0,
-         "eval_every": 0, "checkpoint_every": 40, "buffer_size": 2_000, "target_sync_every": 50, "teacher_steps": 60,
-         "batch_size": 8}  # fmt: skip
+SMOKE = {"total_steps": 60, "learning_starts": 30, "exploration_steps": 40, "episode_seconds": 3.0, "eval_seconds": 1.0,
+         "eval_every": 0, "checkpoint_every": 30, "buffer_size": 2_000, "target_sync_every": 50, "teacher_steps": 60,
+         "batch_size": 8, "bc_steps": 20}  # fmt: skip
 """What --smoke sets in every train stage (each value at most the recipe's), and one evaluation trajectory."""
 
 

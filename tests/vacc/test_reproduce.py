@@ -36,17 +36,7 @@ def _finish(proc: subprocess.Popen, timeout: float = 600) -> str:
     return out
 
 
-SHARED = "ev-force"  # its smoke run serves both its own test and the kill test's uninterrupted run
-ONE_WORKER = pytest.mark.xdist_group("reproduce-ev-force")  # so that they share it under xdist
-
-
-@pytest.fixture(scope="module")
-def shared_smoke(tmp_path_factory) -> tuple[Path, int, str]:
-    """The uninterrupted smoke run of :data:`SHARED`: its folder, exit code and output."""
-    out = tmp_path_factory.mktemp("whole")
-    proc = _reproduce(SHARED, out)
-    text = _finish(proc)
-    return out, proc.returncode, text
+SHARED = "ev-force"  # its smoke run is also the kill test's uninterrupted run: the kill test checks it
 
 
 def test_seed_shift_rule():
@@ -56,32 +46,33 @@ def test_seed_shift_rule():
     assert shifted_seed(72, r, r.seed) == 72 and shifted_seed(72, r, r.seed + 2) == 72 + 2 * SEED_STRIDE
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", [pytest.param(n, marks=ONE_WORKER) if n == SHARED else n for n in RECIPES])
-def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path, request):
-    if name == SHARED:
-        tmp_path, returncode, out = request.getfixturevalue("shared_smoke")
-    else:
-        proc = _reproduce(name, tmp_path)
-        out = _finish(proc)
-        returncode = proc.returncode
+def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None:
     assert returncode == 0, out[-2000:]
-    model = torch.load(tmp_path / f"{name}.pt", weights_only=True)
+    model = torch.load(folder / f"{name}.pt", weights_only=True)
     made = model["lineage"]["recipe"]
     assert made["name"] == name and len(made["digest"]) == 64 and made["stage"] and made["smoke"]
-    report = json.loads((tmp_path / "gates" / "gates.json").read_text())
+    report = json.loads((folder / "gates" / "gates.json").read_text())
     assert report["quick"] and report["checks"]
-    for stage_dir in (p for p in tmp_path.iterdir() if (p / "done.json").is_file()):
+    for stage_dir in (p for p in folder.iterdir() if (p / "done.json").is_file()):
         done = json.loads((stage_dir / "done.json").read_text())
         assert done["stage"] == stage_dir.name and all(len(p["sha256"]) == 64 for p in done["parents"])
 
 
 @pytest.mark.slow
-@ONE_WORKER
-def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path, shared_smoke):
-    whole, returncode, out = shared_smoke
-    assert returncode == 0, out[-2000:]
-    killed = tmp_path / "killed"
+@pytest.mark.parametrize("name", [n for n in RECIPES if n != SHARED])
+def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path):
+    proc = _reproduce(name, tmp_path)
+    out = _finish(proc)
+    _check_smoke_run(name, tmp_path, proc.returncode, out)
+
+
+@pytest.mark.slow
+def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
+    """ev-force's smoke run, checked as every recipe's is, then the same killed half-way and resumed."""
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    proc = _reproduce(SHARED, whole)
+    out = _finish(proc)
+    _check_smoke_run(SHARED, whole, proc.returncode, out)
     proc = _reproduce(SHARED, killed)
     latest = killed / "ev-gap" / "run" / "latest.pt"  # the second stage has checkpointed: it is half-way
     deadline = time.monotonic() + 300
