@@ -7,10 +7,10 @@ STAMP  := $(VENV)/.installed
 .PHONY: install test test-fast test-integration lint demo bench clean
 
 # Both cores: pytest-xdist runs tests in 2 workers (spawned servers bind port 0, so
-# parallel tests never share a port); the Ray tests share one worker (xdist_group). The
-# 25 slowest tests are printed at the end.
+# parallel tests never share a port; two Ray instances side by side are fine). The 25
+# slowest tests are printed at the end.
 JOBS   ?= 2
-PYTEST := $(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup --durations=25
+PYTEST := $(BIN)/python -m pytest -q -n $(JOBS) --durations=25
 
 install: $(STAMP)
 

@@ -28,7 +28,6 @@ from agent_client.rl.config import Config
 from agent_client.rl.distributed import train_distributed
 
 ray = pytest.importorskip("ray")
-pytestmark = pytest.mark.xdist_group("ray")  # one worker runs them: one Ray instance at a time
 
 SMALL = Config(
     total_steps=300, learning_starts=100, train_every=8, batch_size=8, buffer_size=1000, exploration_steps=200,
