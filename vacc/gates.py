@@ -17,7 +17,6 @@ first two safety scenarios: it checks that the gates run, not that a model passe
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -27,6 +26,7 @@ from typing import Any, NamedTuple
 import click
 import numpy as np
 
+from agent_client.rl.checkpoint import file_sha256
 from energy import SETTLE_S
 from protocol.scenarios import TEST_TRAJECTORIES
 from vacc.paths import MODELS_DEFAULT, models_dir
@@ -50,14 +50,6 @@ class Check(NamedTuple):
     figure: float
     bound: float
     passed: bool
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _seeds(text: str, quick: bool) -> list[int]:
@@ -157,7 +149,7 @@ def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool =
         *_random_checks(recipe, checkpoint, out, quick, jobs),
     ]
     report = {
-        "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": _sha256(checkpoint),
+        "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": file_sha256(checkpoint),
         "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
     }  # fmt: skip
     (out / "gates.json").write_text(json.dumps(report, indent=1) + "\n")

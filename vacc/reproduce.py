@@ -19,7 +19,6 @@ in their quick mode: it checks that a recipe still runs, not what it makes.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import shutil
 import signal
@@ -34,6 +33,7 @@ from agent_client.rl.checkpoint import (
     average_policies,
     digest,
     export_policy,
+    file_sha256,
     narrow_policy,
     read_checkpoint,
     with_decision,
@@ -50,15 +50,6 @@ SMOKE = {"total_steps": 60, "learning_starts": 30, "exploration_steps": 40, "epi
          "eval_every": 0, "checkpoint_every": 30, "buffer_size": 2_000, "target_sync_every": 50, "teacher_steps": 60,
          "batch_size": 8, "bc_steps": 20}  # fmt: skip
 """What --smoke sets in every train stage (each value at most the recipe's), and one evaluation trajectory."""
-
-
-def file_sha256(path: Path) -> str:
-    """SHA-256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def weights_sha256(path: Path) -> str:

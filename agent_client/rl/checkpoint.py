@@ -40,6 +40,7 @@ from typing import Any, TypedDict
 import torch
 import torch.nn as nn
 
+from agent_client import runlog
 from agent_client.errors import InputFileError, OutputFileError
 from agent_client.outputs import write_cause
 from agent_client.rl.config import Config, config_dict, config_from
@@ -108,14 +109,10 @@ def file_sha256(path: str | Path) -> str:
     Raises:
         InputFileError: the file cannot be read.
     """
-    h = hashlib.sha256()
     try:
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
+        return runlog.file_sha256(path)
     except OSError as exc:
         raise InputFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    return h.hexdigest()
 
 
 def make_lineage(stage: str, parents: Sequence[str | Path], roles: Sequence[str] | None = None) -> Lineage:
