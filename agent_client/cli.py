@@ -42,11 +42,9 @@ from agent_client.outputs import writable_file_option, write_cause
 from agent_client.runlog import COLUMNS, file_sha256, write_card
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
-from protocol.auth import load_key
 from protocol.constants import CAMERA_SIZE, SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
-from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
-from protocol.options import SunElevation
+from protocol.options import SunElevation, key_option
 from protocol.scenarios import (
     DEFAULT_SET_SPEED,
     RANDOM,
@@ -252,12 +250,8 @@ def spawn_args(road: Road, *, server_faults: str | None, realtime: bool, key_fil
         click.BadParameter: an unreadable or malformed key file.
     """
     server_args = (["--faults", server_faults] if server_faults else []) + (["--realtime"] if realtime else []) + list(road.server_args())
-    key = None
+    key = key_option(key_file)
     if key_file is not None:
-        try:
-            key = load_key(key_file)
-        except KeyFileError as exc:
-            raise click.BadParameter(str(exc), param_hint="--key-file") from None
         server_args += ["--key-file", key_file]
     return server_args, key
 

@@ -7,9 +7,25 @@ from typing import Any
 
 import click
 
+from protocol.auth import load_key
+from protocol.errors import KeyFileError
 from protocol.scenarios import parse_sun_elevation
 
-__all__ = ["SunElevation"]
+__all__ = ["SunElevation", "key_option"]
+
+
+def key_option(key_file: str | None) -> bytes | None:
+    """``--key-file``'s key, or None without one: `vacc serve` and `vacc drive` read it alike.
+
+    Raises:
+        click.BadParameter: an unreadable or malformed key file, in one line naming the option.
+    """
+    if key_file is None:
+        return None
+    try:
+        return load_key(key_file)
+    except KeyFileError as exc:
+        raise click.BadParameter(str(exc), param_hint="--key-file") from None
 
 
 class SunElevation(click.ParamType):

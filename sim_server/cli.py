@@ -8,13 +8,11 @@ import sys
 
 import click
 
-from protocol.auth import load_key
 from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
-from protocol.errors import KeyFileError
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
-from protocol.options import SunElevation
+from protocol.options import SunElevation, key_option
 from protocol.transport import is_loopback
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
@@ -73,12 +71,7 @@ def serve(
     logging.basicConfig(stream=sys.stderr, level=log_level.upper(), format="%(message)s")  # a no-op under `vacc -v`: it set logging up
     if click.get_current_context().get_parameter_source("log_level") is click.ParameterSource.COMMANDLINE:
         log.setLevel(log_level.upper())  # this command's own option wins over the group's
-    key = None
-    if key_file is not None:
-        try:
-            key = load_key(key_file)
-        except KeyFileError as exc:
-            raise click.BadParameter(str(exc), param_hint="--key-file") from None
+    key = key_option(key_file)
     if not is_loopback(host):
         if not allow_remote:
             raise click.UsageError(f"--host {host} is not a loopback address; pass --allow-remote to bind it")

@@ -44,6 +44,13 @@ def _extractor_class() -> Any:
     return VaccExtractor
 
 
+def _timed_learn(model: Any, steps: int) -> float:
+    """Wall time [s] of ``model.learn`` over ``steps`` environment steps."""
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps)
+    return time.perf_counter() - t0
+
+
 def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8, threads: int = 2) -> dict[str, Any]:
     """SB3 DQN (MultiInputPolicy, our net size) training steps/s against a real server.
 
@@ -66,9 +73,7 @@ def sb3_training_rate(steps: int, learning_starts: int, train_every: int = 8, th
             policy_kwargs={"features_extractor_class": _extractor_class(), "net_arch": []},
             seed=1, device="cpu", verbose=0,
         )  # fmt: skip
-        t0 = time.perf_counter()
-        model.learn(total_timesteps=steps)
-        wall = time.perf_counter() - t0
+        wall = _timed_learn(model, steps)
     finally:
         env.close()
     return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "train_every": train_every, "threads": threads}
@@ -96,9 +101,7 @@ def sb3_sac_training_rate(steps: int, learning_starts: int, train_every: int = 8
             policy_kwargs={"features_extractor_class": _extractor_class(), "net_arch": [256], "share_features_extractor": True},
             seed=1, device="cpu", verbose=0,
         )  # fmt: skip
-        t0 = time.perf_counter()
-        model.learn(total_timesteps=steps)
-        wall = time.perf_counter() - t0
+        wall = _timed_learn(model, steps)
     finally:
         env.close()
     return {"steps": steps, "wall_s": wall, "steps_per_s_overall": steps / wall, "train_every": train_every, "threads": threads}
