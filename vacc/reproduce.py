@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-import signal
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +38,7 @@ from agent_client.rl.checkpoint import (
     with_decision,
 )
 from agent_client.rl.config import Config, single_stream_only
+from agent_client.rl.stop import install_stop_handlers, stop_exit_code
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
@@ -207,16 +207,6 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     return evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    """First Ctrl-C: the trainer stops at the next step with a checkpoint. Second: abort."""
-    from agent_client.rl.learner import STOP
-
-    if STOP.is_set():
-        raise SystemExit(128 + signum)
-    STOP.set()
-    click.echo("\nvacc reproduce: stopping after this step with a checkpoint; the same command continues (Ctrl-C again to abort)", err=True)
-
-
 @click.command("reproduce")
 @click.argument("model_or_recipe")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder of the run: one subfolder per stage, the model, the gates.")
@@ -238,12 +228,12 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
         recipe = load_recipe(model_or_recipe)
     except RecipeError as exc:
         raise click.ClickException(str(exc)) from None
-    signal.signal(signal.SIGINT, _interrupt)
+    install_stop_handlers("vacc reproduce", "; the same command continues")
     try:
         report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs)
     except KeyboardInterrupt:
         click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
-        raise SystemExit(130) from None
+        raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
     click.echo(f"Wrote {out}/{recipe.name}.pt and {out}/gates/gates.json")
     if not report["passed"] and not smoke:

@@ -14,7 +14,6 @@ import inspect
 import json
 import re
 import shlex
-import signal
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -37,6 +36,7 @@ from agent_client.rl.config import (
     config_from,
     single_stream_only,
 )
+from agent_client.rl.stop import install_stop_handlers, stop_cause, stop_exit_code
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]
@@ -136,18 +136,6 @@ def make_config(values: dict[str, Any]) -> Config:
         raise click.BadParameter(str(exc), param_hint=option_name(exc.field)) from None
 
 
-def _terminate(signum: int, frame: object) -> None:
-    raise SystemExit(128 + signum)
-
-
-def _interrupt(signum: int, frame: object) -> None:
-    """First Ctrl-C: stop at the next step with a checkpoint. Second: abort."""
-    from agent_client.rl.learner import STOP
-
-    if STOP.is_set():
-        raise SystemExit(128 + signum)
-    STOP.set()
-    click.echo("\nvacc train: stopping after this step with a checkpoint (Ctrl-C again to abort)", err=True)
 
 
 CONFIG_GIVEN = "vacc.train.config"  # ctx.meta key: --config was given
@@ -293,10 +281,9 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     old_files = run_files(run) if overwrite else []
     if cfg.init_from is not None and Path(cfg.init_from).resolve() in {p.resolve() for p in old_files}:
         raise click.UsageError(f"--init-from {cfg.init_from} is a file of the run in --out {run}, which --overwrite removes: copy it elsewhere first")
-    # A plain `kill` or a second Ctrl-C reaps the spawned servers and actors (the finally
-    # blocks run); both leave through SystemExit, one shutdown path.
-    signal.signal(signal.SIGTERM, _terminate)
-    signal.signal(signal.SIGINT, _interrupt)
+    # The first Ctrl-C or `kill` stops with a checkpoint; a second aborts through SystemExit,
+    # whose finally blocks reap the spawned servers and actors.
+    install_stop_handlers("vacc train", "")
     try:
         if use_ray:
             from agent_client.rl.distributed import import_ray
@@ -324,7 +311,7 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         raise click.ClickException(f"{exc.filename or run}: could not be written: {write_cause(exc)}") from None
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
     if summary.get("stopped"):
-        click.echo(f"stopped by Ctrl-C at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
+        click.echo(f"stopped by {stop_cause()} at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
     if distributed:
         click.echo(
             f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "
@@ -337,4 +324,4 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     except OutputFileError as exc:
         raise click.ClickException(str(exc)) from None
     if summary.get("stopped"):
-        raise SystemExit(130)  # as a Ctrl-C ends a program, but with the run saved
+        raise SystemExit(stop_exit_code())  # as the signal ends a program, but with the run saved

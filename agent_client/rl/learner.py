@@ -18,7 +18,6 @@ import json
 import math
 import random
 import sys
-import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -53,6 +52,7 @@ from agent_client.rl.losses import Forward, build_terms, imitation, td, weighted
 from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
 from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
+from agent_client.rl.stop import STOP
 from agent_client.rl.teachers import teacher_law
 
 __all__ = ["Learner", "UpdateLosses", "SESSION_TIMEOUT", "STOP"]
@@ -61,8 +61,6 @@ SESSION_TIMEOUT = 3600.0  # [s] spawned training servers keep an idle session th
 EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
 MALLOC_KEEP = 1 << 30  # [B] freed memory glibc keeps for reuse instead of returning it to the OS
 
-# Set (by the CLI's first Ctrl-C) to end either loop at its next step with a checkpoint.
-STOP = threading.Event()
 
 
 def keep_freed_memory() -> None:

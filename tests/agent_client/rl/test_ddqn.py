@@ -462,17 +462,18 @@ def test_a_full_disk_leaves_no_temporary_file_and_keeps_the_last_checkpoint(tmp_
 
 @pytest.fixture
 def after_a_first_ctrl_c():
-    """The CLI's SIGINT handler installed and STOP set, as after a first Ctrl-C."""
-    from agent_client.rl.cli import _interrupt
-    from agent_client.rl.learner import STOP
+    """The CLI's signal handlers installed and STOP set, as after a first Ctrl-C."""
+    from agent_client.rl.stop import STOP, install_stop_handlers
 
-    previous = signal.signal(signal.SIGINT, _interrupt)
+    previous = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    install_stop_handlers("vacc train", "")
     STOP.set()
     try:
         yield
     finally:
         STOP.clear()
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
 
 
 def _ctrl_c_mid_write(path) -> None:

@@ -245,7 +245,8 @@ def test_resume_of_a_two_server_run(tmp_path):
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL], ids=["SIGTERM", "SIGINT", "SIGKILL"])
 def test_learner_signals_leave_no_process_behind(tmp_path, sig):
-    """SIGTERM, Ctrl-C (SIGINT) or kill -9 of `vacc train --servers 2`: actors and servers all go."""
+    """SIGTERM, Ctrl-C (SIGINT) or kill -9 of `vacc train --servers 2`: actors and servers all go.
+    SIGTERM, as a batch system's pre-emption, stops with a checkpoint like a first Ctrl-C."""
     out = tmp_path / "run"
     args = [*CLI_ARGS, "--servers", "2", "--steps", "100000", "--log-every", "20", "--out", str(out)]
     with vacc_job(args, stderr_path=tmp_path / "stderr.txt") as proc:
@@ -258,6 +259,9 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     assert wait_gone(tree, timeout=20) == [], (tree, stderr[-2000:])
     if sig != signal.SIGKILL:
         assert "Traceback" not in stderr, stderr[-2000:]
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 143 and "SIGTERM: stopping after this step with a checkpoint" in stderr, stderr[-2000:]
+        assert (out / "latest.pt").is_file()
 
 
 def _in_own_group(args, stderr_path):
