@@ -30,6 +30,7 @@ from agent_client.rl.config import (
     DECISIONS,
     RESUMABLE_CHANGES,
     SCHEDULES,
+    SETTINGS,
     TEACHERS,
     Config,
     ConfigError,
@@ -52,14 +53,15 @@ CHOICES: dict[str, tuple[Any, ...]] = {
 
 @lru_cache(maxsize=1)
 def field_docs() -> dict[str, str]:
-    """Each :class:`Config` field's docstring (the string literal after it), whitespace folded."""
-    tree = ast.parse(inspect.getsource(Config))
-    body = tree.body[0].body  # type: ignore[attr-defined]
+    """Each :class:`Config` field's docstring (the string literal after it in its section's
+    class), whitespace folded."""
     docs = {}
-    for node, after in zip(body, body[1:], strict=False):
-        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
-            if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
-                docs[node.target.id] = re.sub(r"\s+", " ", after.value.value).strip()
+    for kind in SETTINGS.values():
+        body = ast.parse(inspect.getsource(kind)).body[0].body  # type: ignore[attr-defined]
+        for node, after in zip(body, body[1:], strict=False):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+                    docs[node.target.id] = re.sub(r"\s+", " ", after.value.value).strip()
     return docs
 
 

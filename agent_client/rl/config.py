@@ -1,4 +1,7 @@
-"""The settings of a training run: one frozen dataclass, one docstring per field.
+"""The settings of a training run: a frozen dataclass per section (environment, DQN,
+network, evaluation, teacher, auxiliary heads, decision, streams, actor-critic), each
+validating its own fields, and :class:`Config`, which joins them and checks what spans
+several.
 
 ``vacc train`` generates its options from these fields (:mod:`agent_client.rl.cli`),
 so the docstrings below are the ``--help`` text and the defaults are the CLI's.
@@ -9,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from agent_client.actions import ACTION_TYPES, RAMP_ACTIONS, is_continuous
 from agent_client.errors import InputFileError
@@ -27,7 +30,11 @@ from protocol.scenarios import (
     check_sun_elevation,
 )
 
-__all__ = ["Config", "ConfigError", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from"]
+__all__ = [
+    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
+    "EnvironmentSettings", "DQNSettings", "NetworkSettings", "EvaluationSettings", "TeacherSettings", "AuxiliarySettings",
+    "DecisionSettings", "StreamsSettings", "ActorCriticSettings",
+]  # fmt: skip
 
 SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
@@ -41,6 +48,9 @@ CRASH_REWARD_RANGE = (-10.0, 0.0)  # the floor of the normalised rewards is -1; 
 
 # What a run saved before a setting existed did: it trained and evaluated that way.
 LEGACY_VALUES = {"schedule": "serial", "set_speed": SET_SPEED_RANGE[1], "action": "levels", "teacher": "none", "teacher_brake": 0.0, "eco_weights": (1.0, 0.5, 0.25, 0.0)}
+
+
+S = TypeVar("S")
 
 
 class ConfigError(ValueError):
@@ -86,8 +96,8 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
 
 
 @dataclass(frozen=True)
-class Config:
-    """Every setting of a training run. The CLI only fills this in."""
+class EnvironmentSettings:
+    """The reward, scenario, action and training episodes."""
 
     reward: str = "gap"
     """"gap" (Table 1), "force" (gap and force terms) or "eco" (gap minus energy and jerk)."""
@@ -106,6 +116,20 @@ class Config:
     """Cars per side lane in training."""
     train_sun_elevation: tuple[float, ...] = SUN_ELEVATION
     """[rad] LOW,HIGH range of the sun's height in training episodes."""
+    crash_reward: float | None = None
+    """Reward of a collision, in [-10, 0]; unset: the reward's own."""
+    episode_seconds: float | None = 60.0
+    """[s] episode length (0: all)."""
+
+    def __post_init__(self) -> None:
+        check_environment(self)
+
+
+
+@dataclass(frozen=True)
+class DQNSettings:
+    """The Double DQN's schedule, sizes and rates."""
+
     total_steps: int = 200_000
     """Environment steps (0.1 s each) to train for."""
     seed: int = 1
@@ -140,8 +164,26 @@ class Config:
     """Steps of the n-step return."""
     absorbing_terminal: bool = True
     """Value a termination as its reward forever, r / (1 - γ), not 0."""
-    crash_reward: float | None = None
-    """Reward of a collision, in [-10, 0]; unset: the reward's own."""
+    checkpoint_every: int = 10_000
+    """Steps between checkpoints."""
+    init_from: str | None = None
+    """Checkpoint whose weights start the run."""
+    torch_threads: int = 2
+    """CPU threads of torch."""
+    cuda: bool = True
+    """Use CUDA if available."""
+    log_every: int = 500
+    """Steps between scalars."""
+
+    def __post_init__(self) -> None:
+        check_dqn(self)
+
+
+
+@dataclass(frozen=True)
+class NetworkSettings:
+    """What the network sees and its widths."""
+
     frame_stack: int = 8
     """Frames per observation."""
     stack_stride: int = 2
@@ -156,8 +198,16 @@ class Config:
     """Units of the hidden layer."""
     zoom: int = 1
     """Camera window: 1, the paper's (halved); 2, full resolution."""
-    episode_seconds: float | None = 60.0
-    """[s] episode length (0: all)."""
+
+    def __post_init__(self) -> None:
+        check_network(self)
+
+
+
+@dataclass(frozen=True)
+class EvaluationSettings:
+    """The evaluations that pick best.pt."""
+
     eval_every: int = 25_000
     """Steps between evaluations (0: only at the end)."""
     eval_trajectories: tuple[str, ...] = TEST_TRAJECTORIES
@@ -166,10 +216,16 @@ class Config:
     """[s] evaluation length (0: all)."""
     keep_evals: bool = False
     """Keep each evaluation's policy as evals/STEP.pt."""
-    checkpoint_every: int = 10_000
-    """Steps between checkpoints."""
-    init_from: str | None = None
-    """Checkpoint whose weights start the run."""
+
+    def __post_init__(self) -> None:
+        check_evaluation(self)
+
+
+
+@dataclass(frozen=True)
+class TeacherSettings:
+    """The teacher (DAgger) run's labels."""
+
     teacher: str = "none"
     """Labels the states (DAgger): none (Double DQN), policy or an ACC law (python -m
     agent_client.rl.teachers)."""
@@ -179,16 +235,36 @@ class Config:
     """[m/s^2] (teacher, ramp) the least deceleration labelled as the full brake."""
     brake_weight: float = 1.0
     """(teacher) weight of full-brake labels."""
+    teacher_lag: float = 0.0
+    """[s] (teacher) lag of the law's view of the closing speed."""
+    teacher_steps: int = 50_000
+    """(teacher) steps over which the teacher's share of driving falls to 0."""
+
+    def __post_init__(self) -> None:
+        check_teacher(self)
+
+
+
+@dataclass(frozen=True)
+class AuxiliarySettings:
+    """The auxiliary heads' and the brake margin's weights."""
+
     aux_gap: float = 0.0
     """Weight of a gap head (0: off)."""
     aux_closing: float = 0.0
     """Weight of a closing-speed head (0: off)."""
     brake_margin: float = 0.0
     """(Double DQN) weight of a loss ranking the full brake first in emergencies (0: off)."""
-    teacher_lag: float = 0.0
-    """[s] (teacher) lag of the law's view of the closing speed."""
-    teacher_steps: int = 50_000
-    """(teacher) steps over which the teacher's share of driving falls to 0."""
+
+    def __post_init__(self) -> None:
+        check_auxiliary(self)
+
+
+
+@dataclass(frozen=True)
+class DecisionSettings:
+    """How the outputs become the force."""
+
     decision: str = "argmax"
     """"argmax", or "mean" (the softmax-weighted target; teacher and ramp action)."""
     decision_temperature: float = 2.0
@@ -203,18 +279,32 @@ class Config:
     """(mean) hold the force where the target is this close (0: off)."""
     decision_smoothing: float = 1.0
     """(mean) share of the way to the target each step (1: off)."""
-    torch_threads: int = 2
-    """CPU threads of torch."""
-    cuda: bool = True
-    """Use CUDA if available."""
-    log_every: int = 500
-    """Steps between scalars."""
+
+    def __post_init__(self) -> None:
+        check_decision(self)
+
+
+
+@dataclass(frozen=True)
+class StreamsSettings:
+    """The K-stream trainer's sizes."""
+
     servers: int = 1
     """Servers feeding one learner."""
     weight_sync_every: int = 20
     """(servers > 1) updates between weight syncs."""
     actor_batch: int = 50
     """(servers > 1) transitions per delivery."""
+
+    def __post_init__(self) -> None:
+        check_streams(self)
+
+
+
+@dataclass(frozen=True)
+class ActorCriticSettings:
+    """DrQ-v2's noise, target rate, augmentation and warm start."""
+
     noise_start: float = 1.0
     """(continuous) exploration noise std at step 0."""
     noise_end: float = 0.1
@@ -229,9 +319,24 @@ class Config:
     """(continuous) steps cloning the --init-from DQN's decision into the actor."""
 
     def __post_init__(self) -> None:
-        for check in SECTION_CHECKS.values():
-            check(self)
+        check_actor_critic(self)
+
+
+@dataclass(frozen=True)
+class Config(ActorCriticSettings, StreamsSettings, DecisionSettings, AuxiliarySettings, TeacherSettings,
+             EvaluationSettings, NetworkSettings, DQNSettings, EnvironmentSettings):
+    """Every setting of a training run: the sections above, in one flat namespace (the
+    CLI's options, ``config.json`` and the recipes name fields, not sections). The CLI
+    only fills this in."""
+
+    def __post_init__(self) -> None:
+        for kind in SETTINGS.values():
+            kind.__post_init__(self)  # type: ignore[attr-defined]
         check_across_sections(self)
+
+    def section(self, kind: type[S]) -> S:
+        """The settings of one section (``cfg.section(DQNSettings)``), as their own object."""
+        return kind(**{f.name: getattr(self, f.name) for f in dataclasses.fields(kind)})  # type: ignore[arg-type]
 
     @property
     def stores_gaps(self) -> bool:
@@ -240,44 +345,34 @@ class Config:
         return self.aux_gap > 0.0 or self.aux_closing > 0.0 or self.brake_margin > 0.0
 
 
-# Which fields each section of the settings holds; every field is in one, and each
-# section's check reads only its own fields (check_across_sections reads several).
-SECTIONS: dict[str, tuple[str, ...]] = {
-    "environment": ("reward", "scenario", "set_speed", "eco_weights", "action", "train_trajectories", "train_traffic",
-                    "train_sun_elevation", "crash_reward", "episode_seconds"),
-    "dqn": ("total_steps", "seed", "schedule", "learning_rate", "adam_eps", "buffer_size", "gamma", "target_sync_every",
-            "batch_size", "start_e", "end_e", "exploration_steps", "learning_starts", "train_every", "max_grad_norm",
-            "n_step", "absorbing_terminal", "checkpoint_every", "init_from", "torch_threads", "cuda", "log_every"),
-    "network": ("frame_stack", "stack_stride", "preroll", "speed_scale", "conv_channels", "hidden", "zoom"),
-    "evaluation": ("eval_every", "eval_trajectories", "eval_seconds", "keep_evals"),
-    "teacher": ("teacher", "teacher_policy", "teacher_brake", "brake_weight", "teacher_lag", "teacher_steps"),
-    "auxiliary": ("aux_gap", "aux_closing", "brake_margin"),
-    "decision": ("decision", "decision_temperature", "decision_brake_share", "decision_brake_confirm",
-                 "decision_full_brake_confirm", "decision_deadband", "decision_smoothing"),
-    "streams": ("servers", "weight_sync_every", "actor_batch"),
-    "actor_critic": ("noise_start", "noise_end", "noise_clip", "critic_tau", "shift_pad", "bc_steps"),
+# The sections, by name; each validates itself, and check_across_sections reads several.
+SETTINGS: dict[str, type] = {
+    "environment": EnvironmentSettings, "dqn": DQNSettings, "network": NetworkSettings, "evaluation": EvaluationSettings,
+    "teacher": TeacherSettings, "auxiliary": AuxiliarySettings, "decision": DecisionSettings, "streams": StreamsSettings,
+    "actor_critic": ActorCriticSettings,
 }  # fmt: skip
+SECTIONS: dict[str, tuple[str, ...]] = {name: tuple(f.name for f in dataclasses.fields(kind)) for name, kind in SETTINGS.items()}
 
 
 def _bad(name: str, message: str) -> ConfigError:
     return ConfigError(name, f"{name} {message}")
 
 
-def _at_least(cfg: Config, names: tuple[str, ...], low: int) -> None:
+def _at_least(cfg: Any, names: tuple[str, ...], low: int) -> None:
     """Raises ConfigError: the first of ``names`` below ``low``."""
     for name in names:
         if getattr(cfg, name) < low:
             raise _bad(name, f"must be >= {low}")
 
 
-def _finite_and_not_negative(cfg: Config, names: tuple[str, ...]) -> None:
+def _finite_and_not_negative(cfg: Any, names: tuple[str, ...]) -> None:
     """Raises ConfigError: the first of ``names`` that is not finite and >= 0."""
     for name in names:
         if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0.0):
             raise _bad(name, f"must be finite and >= 0, got {getattr(cfg, name)}")
 
 
-def check_environment(cfg: Config) -> None:
+def check_environment(cfg: EnvironmentSettings) -> None:
     """The reward, scenario, action and training episodes. Raises ConfigError."""
     from agent_client.rewards import REWARDS
 
@@ -306,7 +401,7 @@ def check_environment(cfg: Config) -> None:
         raise _bad("set_speed", f"must be in {SET_SPEED_RANGE[0]:g}..{SET_SPEED_RANGE[1]:g} m/s")
 
 
-def check_dqn(cfg: Config) -> None:
+def check_dqn(cfg: DQNSettings) -> None:
     """The Double DQN's schedule, sizes and rates. Raises ConfigError."""
     if cfg.schedule not in SCHEDULES:
         raise _bad("schedule", f"{cfg.schedule!r} is not one of {SCHEDULES}")
@@ -322,7 +417,7 @@ def check_dqn(cfg: Config) -> None:
         raise _bad("learning_rate", "must be > 0")
 
 
-def check_network(cfg: Config) -> None:
+def check_network(cfg: NetworkSettings) -> None:
     """What the network sees and its widths. Raises ConfigError."""
     if len(cfg.conv_channels) != 3 or not all(isinstance(c, int) and 1 <= c <= 512 for c in cfg.conv_channels):
         raise _bad("conv_channels", f"must be three whole numbers in 1..512, got {','.join(map(str, cfg.conv_channels))}")
@@ -333,7 +428,7 @@ def check_network(cfg: Config) -> None:
         raise _bad("zoom", f"must be one of {ZOOMS}")
 
 
-def check_evaluation(cfg: Config) -> None:
+def check_evaluation(cfg: EvaluationSettings) -> None:
     """The evaluations that pick best.pt. Raises ConfigError."""
     _at_least(cfg, ("eval_every",), 0)
     for name in cfg.eval_trajectories:
@@ -343,7 +438,7 @@ def check_evaluation(cfg: Config) -> None:
             raise ConfigError("eval_trajectories", str(exc)) from None
 
 
-def check_teacher(cfg: Config) -> None:
+def check_teacher(cfg: TeacherSettings) -> None:
     """The teacher (DAgger) run's labels. Raises ConfigError."""
     if cfg.teacher not in TEACHERS:
         raise _bad("teacher", f"{cfg.teacher!r} is not one of {TEACHERS}")
@@ -364,12 +459,12 @@ def check_teacher(cfg: Config) -> None:
     _at_least(cfg, ("teacher_steps",), 1)
 
 
-def check_auxiliary(cfg: Config) -> None:
+def check_auxiliary(cfg: AuxiliarySettings) -> None:
     """The auxiliary heads' and the brake margin's weights. Raises ConfigError."""
     _finite_and_not_negative(cfg, SECTIONS["auxiliary"])
 
 
-def check_decision(cfg: Config) -> None:
+def check_decision(cfg: DecisionSettings) -> None:
     """How the outputs become the force. Raises ConfigError."""
     if cfg.decision not in DECISIONS:
         raise _bad("decision", f"{cfg.decision!r} is not one of {DECISIONS}")
@@ -397,12 +492,12 @@ def check_decision(cfg: Config) -> None:
                 raise _bad(name, f"{why}: it needs decision 'mean'")
 
 
-def check_streams(cfg: Config) -> None:
+def check_streams(cfg: StreamsSettings) -> None:
     """The K-stream trainer's sizes. Raises ConfigError."""
     _at_least(cfg, SECTIONS["streams"], 1)
 
 
-def check_actor_critic(cfg: Config) -> None:
+def check_actor_critic(cfg: ActorCriticSettings) -> None:
     """DrQ-v2's noise, target rate, augmentation and warm start. Raises ConfigError."""
     _finite_and_not_negative(cfg, ("noise_start", "noise_end", "noise_clip"))
     if not 0.0 < cfg.critic_tau <= 1.0:
@@ -410,13 +505,6 @@ def check_actor_critic(cfg: Config) -> None:
     if not 0 <= cfg.shift_pad <= 16:
         raise _bad("shift_pad", f"must be in 0..16 px, got {cfg.shift_pad}")
     _at_least(cfg, ("bc_steps",), 0)
-
-
-SECTION_CHECKS = {
-    "environment": check_environment, "dqn": check_dqn, "network": check_network, "evaluation": check_evaluation,
-    "teacher": check_teacher, "auxiliary": check_auxiliary, "decision": check_decision, "streams": check_streams,
-    "actor_critic": check_actor_critic,
-}  # fmt: skip
 
 
 def check_across_sections(cfg: Config) -> None:

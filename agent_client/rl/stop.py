@@ -23,7 +23,7 @@ __all__ = ["STOP", "install_stop_handlers", "stop_exit_code", "stop_cause"]
 STOP = threading.Event()
 _first_signal: list[int] = []  # the signal that set STOP
 
-_NAMES = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
+_NAMES: dict[int, str] = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
 
 
 def install_stop_handlers(prog: str, then: str) -> None:

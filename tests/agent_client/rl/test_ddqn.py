@@ -572,12 +572,20 @@ def test_a_row_torn_by_a_kill_is_dropped_on_resume_and_rows_reach_the_disk_while
     log.close()
 
 
-def test_every_config_field_is_in_one_section_and_each_section_has_its_check():
-    from agent_client.rl.config import SECTION_CHECKS, SECTIONS
+def test_every_config_field_is_in_one_section_and_each_section_checks_itself():
+    from agent_client.rl.config import SECTIONS, SETTINGS, ConfigError, DQNSettings, TeacherSettings
 
     names = [name for fields in SECTIONS.values() for name in fields]
     assert sorted(names) == sorted(f.name for f in dataclasses.fields(Config))  # each in exactly one
-    assert SECTION_CHECKS.keys() == SECTIONS.keys()
+    assert all(issubclass(Config, kind) for kind in SETTINGS.values())
+    # a section alone refuses its own bad values, and Config hands each section its fields
+    with pytest.raises(ConfigError, match="gamma must be in"):
+        DQNSettings(gamma=1.0)
+    with pytest.raises(ConfigError, match="teacher_policy is the checkpoint"):
+        TeacherSettings(teacher_policy="x.pt")
+    cfg = Config(gamma=0.9, teacher_steps=7)
+    assert cfg.section(DQNSettings) == DQNSettings(gamma=0.9)
+    assert cfg.section(TeacherSettings).teacher_steps == 7
 
 
 @pytest.mark.parametrize("bad", [
