@@ -59,8 +59,9 @@ REQUIRED_KEYS = ("scenario", "trajectory", "seed", "control_period", "protocol")
 PERIOD_TOLERANCE = 1e-9  # [s] control periods are compared as numbers, not strings
 # Protocol 2 only added reset and obs fields (initial conditions, set speed), so a
 # protocol-1 recording replays the same run below the default 33.5 m/s set speed;
-# 3 to 5 changed only the handshake and the pre-roll, which a recording starts after.
-REPLAYABLE_PROTOCOLS = (1, 2, 3, 4, PROTOCOL_VERSION)
+# 3 to 6 changed only the handshake, the welcome and the pre-roll, which a recording
+# starts after.
+REPLAYABLE_PROTOCOLS = tuple(range(1, PROTOCOL_VERSION + 1))
 MAX_DURATION = 86_400.0  # [s] a day: no vacc episode lasts an hour; a longer one is a typo, not a drive
 START_KEYS = (("set_speed", "--set-speed"), ("host_speed", "--host-speed"), ("gap", "--gap"))
 
