@@ -18,29 +18,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from agent_client.controllers.acc import AccController
 from energy.openacc import OPENACC_FILES, read_openacc
 from energy.string_stability import amplification
 from vacc.acc_calibration import fit_follower
+from vacc.openacc_suite import simulated_row
 from vacc.platoon_figures import plot_amplification, plot_time_space, positions
-from vacc.platoon_sim import lead_profile, simulate_platoon
 
 CAR_LENGTH_M = 4.6  # [m] drawn in the real time-space diagrams (OpenACC gives bumper gaps only)
 
 
 def simulated_ratio(name: str) -> tuple[float, float]:
     """(lead-to-last ratio, last car's RMS deviation [m/s]) of an all-ACC platoon behind the file's lead."""
-    run = read_openacc(name)
-    ok = np.isfinite(run.speed[0])
-    t, v = run.t[ok], run.speed[0, ok]
-    law = AccController()
-    sim = simulate_platoon(lead_profile(t, v, t[-1] - t[0]), [AccController() for _ in range(run.n_cars - 1)], law.reference_gap(float(v[0])))
-    if sim.collided is not None:
-        return float("nan"), float("nan")
-    amp = amplification(sim.t, sim.v)
-    return amp.lead_to_last.speed_rms, amp.last_speed_dev_rms
+    row = simulated_row(read_openacc(name), "acc")
+    return (float("nan"), float("nan")) if row.collided else (row.speed_rms, row.last_dev_rms)
 
 
 def main() -> None:

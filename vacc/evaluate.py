@@ -69,10 +69,10 @@ OPTIONAL = ("ddqn-eco",)  # beyond the paper: in the default methods only where 
 HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
 DEFAULT_VEHICLE = SCENARIO_VEHICLES
 
-SUITES = ("paper", "safety", "random")
+SUITES = ("paper", "safety", "random", "openacc")
 SAFETY_SEEDS = "0-9"
 """The safety suite's seeds when neither --seed nor --seeds is given (the paper suite's: 0)."""
-SUITE_SEEDS = {"paper": "0", "safety": SAFETY_SEEDS, "random": RANDOM_SEEDS}
+SUITE_SEEDS = {"paper": "0", "safety": SAFETY_SEEDS, "random": RANDOM_SEEDS, "openacc": "0"}
 """Each suite's seeds when neither --seed nor --seeds is given."""
 
 
@@ -346,6 +346,34 @@ def random_suite(
     click.echo(f"Wrote {out}/summary.json, random.md and logs/")
 
 
+def openacc_suite(out: Path, methods: str | None) -> None:
+    """Platoons of the laws behind the nine OpenACC leads, beside the real platoons
+    (:mod:`vacc.openacc_suite`): write openacc.md and openacc.json and print the table.
+
+    Raises:
+        click.BadParameter: --methods names a platoon kind that does not exist.
+    """
+    from vacc.openacc_suite import PLATOONS, run_openacc
+
+    kinds = list(PLATOONS) if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
+    if not kinds or any(k not in PLATOONS for k in kinds):
+        raise click.BadParameter(f"the openacc suite drives platoons of {', '.join(PLATOONS)}, got {methods!r}", param_hint="--methods")
+    click.echo(run_openacc(out, platoons=kinds), nl=False)
+    click.echo(f"Wrote {out}/openacc.md and openacc.json")
+
+
+def _not_for_openacc(ctx: click.Context) -> None:
+    """Refuse the options that the openacc suite would ignore (its leads are the nine files).
+
+    Raises:
+        click.BadParameter: one line naming the option.
+    """
+    for name in ("seed", "seeds", "duration", "human_files", "scenario", "models", "vehicle", "traffic", "sun_elevation", "cold_start"):
+        if ctx.get_parameter_source(name) == click.core.ParameterSource.COMMANDLINE:
+            option = "--" + name.replace("_", "-")
+            raise click.BadParameter("the openacc suite drives the nine OpenACC leads in the kinematic platoon; it takes --out and --methods only", param_hint=option)
+
+
 def _paper_only(suite: str, given: dict[str, Any]) -> None:
     """Refuse the paper suite's options with another suite, and --view without a window to show.
 
@@ -382,7 +410,7 @@ def _paper_only(suite: str, given: dict[str, Any]) -> None:
 @click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
 @click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
-@click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md).")
+@click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md). openacc: platoons of the laws (--methods acc,hdm,mixed) behind the nine real OpenACC leads, beside the real platoons' amplification (openacc.md).")
 @click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper). A checkpoint trained for the other scenario is refused.")
 @click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
 @click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
@@ -399,6 +427,10 @@ def evaluate(
 
     Returns the combined metrics per method of the paper suite (see build_tables).
     """
+    if suite == "openacc":
+        _not_for_openacc(click.get_current_context())
+        openacc_suite(Path(out), methods)
+        return None
     seed_list = _seed_list(seed, seeds, suite)
     road = Road(traffic, sun_elevation)
     if suite == "paper" and road.sun_elevation != SUN_ELEVATION:

@@ -4,8 +4,8 @@ No camera, no server, no traffic: each follower is the simulator's longitudinal 
 (:func:`sim_server.vehicle.advance_speed` under :func:`protocol.force.accel_of_force`,
 :data:`~protocol.constants.SUBSTEPS` physics steps of :data:`~protocol.constants.PHYSICS_DT`
 per control step) driven by a controller that reads the observation a session gives
-(``gap``, ``v_host``, ``v_lead``, ``a_lead``, ``set_speed``) about the car directly
-ahead. Positions advance as the world's pymunk bodies do (velocity first, then
+(``t``, ``gap``, ``v_host``, ``accel``, ``v_lead``, ``a_lead``, ``set_speed``) about
+itself and the car directly ahead. Positions advance as the world's pymunk bodies do (velocity first, then
 x += v dt), so one follower behind a lead here drives as the host of a world does.
 
 It is fast enough to test the string-stability figures against the ACC's linear theory
@@ -100,7 +100,7 @@ def simulate_platoon(
     collided = None
     vk, xk, step = v[:, 0].copy(), x[:, 0].copy(), 0
     for k in range(1, frames + 1):
-        us = [_decide(controllers[i], xk, vk, a_prev, i + 1, set_speed) for i in range(n)]
+        us = [_decide(controllers[i], xk, vk, a_prev, i + 1, set_speed, (k - 1) * substeps * physics_dt) for i in range(n)]
         a_cmd = np.array([accel_of_force(u) for u in us])
         v_start = vk.copy()
         for _ in range(substeps):
@@ -120,9 +120,11 @@ def simulate_platoon(
     return PlatoonRun(t, v, x, x[:-1] - x[1:] - CAR_LENGTH, force, collided)
 
 
-def _decide(policy: Policy, x: np.ndarray, v: np.ndarray, a: np.ndarray, i: int, set_speed: float) -> float:
-    """Car i's force from what a session would show it of the car ahead."""
+def _decide(policy: Policy, x: np.ndarray, v: np.ndarray, a: np.ndarray, i: int, set_speed: float, t: float) -> float:
+    """Car i's force from what a session would show it of the car ahead (and of itself)."""
     obs = {
+        "t": t,
+        "accel": float(a[i]),
         "gap": float(x[i - 1] - x[i] - CAR_LENGTH),
         "v_host": float(v[i]),
         "v_lead": float(v[i - 1]),
