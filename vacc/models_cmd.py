@@ -2,8 +2,9 @@
 against its file.
 
 The index holds, per model, what its file says (scenario, action type, decision rule,
-size, SHA-256), where its recipe is (``recipes/<model>.toml``) and the gate figures
-measured for that file, with where they come from. :func:`write_index` re-makes the
+size, SHA-256), where its recipe is (``recipes/<model>.toml``), the gate figures
+measured for that file, with where they come from, and the verdict of a ``vacc gates``
+run on it (``--record-gates``). :func:`write_index` re-makes the
 file fields from ``models/*.pt`` and keeps each model's figures while its SHA-256 is the
 one they were measured on.
 """
@@ -20,7 +21,7 @@ from agent_client.errors import ClientError
 from agent_client.rl.checkpoint import checkpoint_config, file_sha256, read_checkpoint
 from vacc.paths import MODELS_DEFAULT, models_dir
 
-__all__ = ["INDEX_NAME", "INDEX_FORMAT", "models", "model_entry", "write_index", "read_index", "check_models", "recipe_path"]
+__all__ = ["INDEX_NAME", "INDEX_FORMAT", "models", "model_entry", "write_index", "read_index", "check_models", "recipe_path", "record_gates"]
 
 INDEX_NAME = "index.json"
 INDEX_FORMAT = "vacc-models"
@@ -33,8 +34,9 @@ def recipe_path(name: str) -> str:
     return f"{RECIPES}/{name}.toml"
 
 
-def model_entry(path: Path, gates: dict[str, Any] | None) -> dict[str, Any]:
-    """The index entry of the checkpoint at ``path``, with the figures ``gates`` (None: unmeasured).
+def model_entry(path: Path, gates: dict[str, Any] | None, verdict: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The index entry of the checkpoint at ``path``, with the figures ``gates`` (None: unmeasured)
+    and the ``verdict`` of a `vacc gates` run on this file (None: not run).
 
     Raises:
         InputFileError: not a readable checkpoint.
@@ -44,7 +46,7 @@ def model_entry(path: Path, gates: dict[str, Any] | None) -> dict[str, Any]:
     return {
         "name": path.stem, "file": path.name, "scenario": cfg.scenario, "action": cfg.action, "reward": cfg.reward,
         "decision": cfg.decision, "size": path.stat().st_size, "sha256": file_sha256(path), "recipe": recipe_path(path.stem),
-        "gates": gates,
+        "gates": gates, "verdict": verdict,
     }  # fmt: skip
 
 
@@ -82,9 +84,9 @@ def write_index(folder: Path, out: Path | None = None) -> list[str]:
     entries, notes = [], []
     for path in sorted(folder.glob("*.pt")):
         before = old.get(path.stem, {})
-        entry = model_entry(path, before.get("gates"))
-        if before and before.get("sha256") != entry["sha256"] and entry["gates"] is not None:
-            entry["gates"] = None
+        entry = model_entry(path, before.get("gates"), before.get("verdict"))
+        if before and before.get("sha256") != entry["sha256"] and (entry["gates"] is not None or entry["verdict"] is not None):
+            entry["gates"] = entry["verdict"] = None
             notes.append(f"{path.stem}: its file changed; its gate figures were dropped (measure them again)")
         elif entry["gates"] is None:
             notes.append(f"{path.stem}: no gate figures")
@@ -92,6 +94,40 @@ def write_index(folder: Path, out: Path | None = None) -> list[str]:
     index = {"format": INDEX_FORMAT, "version": INDEX_VERSION, "written_by": "vacc models --write-index", "models": entries}
     (out or folder / INDEX_NAME).write_text(json.dumps(index, indent=2, ensure_ascii=False) + "\n")
     return notes
+
+
+def record_gates(folder: Path, report_path: Path) -> str:
+    """Put the verdict of a `vacc gates` report (its ``gates.json``) into ``folder``'s index,
+    on the model whose file it checked (matched by SHA-256); return a line saying so.
+
+    Raises:
+        click.ClickException: the report does not read, is a --quick one, or checked a file
+            that is no indexed model.
+    """
+    try:
+        report = json.loads(report_path.read_text())
+        sha, checks = report["sha256"], report["checks"]
+        failed = [f"{c['gate']}: {c['what']}" for c in checks if not c["passed"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise click.ClickException(f"{report_path}: not a gates report of `vacc gates` ({exc})") from None
+    if report.get("quick"):
+        raise click.ClickException(f"{report_path}: a --quick report checks that the gates run, not the model: run `vacc gates` without --quick")
+    index = read_index(folder)
+    entry = next((m for m in index["models"] if m.get("sha256") == sha), None)
+    if entry is None:
+        raise click.ClickException(f"{report_path}: it checked a file of SHA-256 {sha[:12]}, which is no model of {folder / INDEX_NAME}")
+    entry["verdict"] = {
+        "passed": not failed, "checks_passed": len(checks) - len(failed), "checks": len(checks), "failed": failed,
+        "recipe": report.get("recipe"), "recipe_digest": report.get("recipe_digest"), "measured_by": "vacc gates",
+    }  # fmt: skip
+    (folder / INDEX_NAME).write_text(json.dumps(index, indent=2, ensure_ascii=False) + "\n")
+    return f"{entry['name']}: {'PASS' if not failed else 'FAIL'} {len(checks) - len(failed)}/{len(checks)} gate checks recorded from {report_path}"
+
+
+def _verdict_text(verdict: dict[str, Any] | None) -> str:
+    if not verdict:
+        return "not run"
+    return f"{'PASS' if verdict['passed'] else 'FAIL'} {verdict['checks_passed']}/{verdict['checks']}"
 
 
 def check_models(folder: Path) -> list[dict[str, Any]]:
@@ -134,12 +170,13 @@ def _recipe_text(recipe: str | None, root: Path) -> str:
 
 
 def _table(rows: list[dict[str, Any]], root: Path) -> list[str]:
-    head = ("model", "scenario", "action", "size", "sha256", "check", "recipe", "gap RMSE m: mean (per test, or range)", "energy vs ACC")
+    head = ("model", "scenario", "action", "size", "sha256", "check", "recipe", "vacc gates", "gap RMSE m: mean (per test, or range)", "energy vs ACC")
     cells = [head]
     for r in rows:
         size = f"{r['size'] / 1e6:.2f} MB" if "size" in r else "—"
         cells.append((r["name"], r.get("scenario", "—"), r.get("action", "—"), size, r.get("sha256", "—")[:12], r["check"],
-                      _recipe_text(r.get("recipe"), root), _gap_text(r.get("gates")), _energy_text(r.get("gates"))))  # fmt: skip
+                      _recipe_text(r.get("recipe"), root), _verdict_text(r.get("verdict")), _gap_text(r.get("gates")),
+                      _energy_text(r.get("gates"))))  # fmt: skip
     widths = [max(len(str(c[i])) for c in cells) for i in range(len(head))]
     return ["  ".join(str(c).ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in cells]
 
@@ -160,7 +197,9 @@ def _problems(rows: list[dict[str, Any]], folder: Path) -> list[str]:
               help="The folder of the shipped models and their index.json.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 @click.option("--write-index", "rewrite", is_flag=True, help="Re-make index.json from the folder's *.pt (keeping the figures of unchanged files).")
-def models(folder: str, as_json: bool, rewrite: bool) -> None:
+@click.option("--record-gates", "reports", multiple=True, type=click.Path(dir_okay=False), metavar="GATES_JSON",
+              help="Record the verdict of a `vacc gates` run (its gates.json) on the model whose file it checked (repeatable).")
+def models(folder: str, as_json: bool, rewrite: bool, reports: tuple[str, ...] = ()) -> None:
     """List the shipped models: scenario, action type, size, SHA-256 (checked against the
     file), recipe and gate figures, from the folder's index.json.
 
@@ -176,6 +215,8 @@ def models(folder: str, as_json: bool, rewrite: bool) -> None:
         for note in notes:
             click.echo(note, err=True)
         click.echo(f"wrote {path / INDEX_NAME}", err=True)
+    for report in reports:
+        click.echo(record_gates(path, Path(report)), err=True)
     rows = check_models(path)
     if as_json:
         click.echo(json.dumps(rows, indent=2, ensure_ascii=False))

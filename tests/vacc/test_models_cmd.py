@@ -96,3 +96,44 @@ def test_models_end_to_end():
     assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout)
     assert len(rows) == len(list(MODELS.glob("*.pt"))) and all(r["check"] == "ok" for r in rows)
+
+
+def _report(tmp_path: Path, sha: str, *, quick: bool = False, failing: int = 1) -> Path:
+    checks = [{"gate": "tests", "what": f"test-{i} gap RMSE", "figure": 2.5, "bound": 3.4, "passed": True} for i in range(1, 5)]
+    checks += [{"gate": "safety", "what": "distant-stop seed 3", "figure": 0.0, "bound": 1.0, "passed": False}] * failing
+    path = tmp_path / "gates.json"
+    path.write_text(json.dumps({"recipe": "ice-gap", "recipe_digest": "d" * 64, "sha256": sha, "quick": quick, "checks": checks, "passed": not failing}))
+    return path
+
+
+def test_a_gates_verdict_is_recorded_on_the_model_it_checked_and_kept_while_the_file_is_the_same(tmp_path):
+    folder = _copy(tmp_path)
+    report = _report(tmp_path, _sha256(folder / "ice-gap.pt"))
+    done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(report)])
+    assert done.exit_code == 0, done.output
+    assert "ice-gap: FAIL 4/5 gate checks recorded" in done.output
+    row = next(line for line in done.output.splitlines() if line.startswith("ice-gap "))
+    assert "FAIL 4/5" in row
+    assert "not run" in next(line for line in done.output.splitlines() if line.startswith("ice-force "))
+    verdict = {m["name"]: m["verdict"] for m in read_index(folder)["models"]}["ice-gap"]
+    assert verdict["failed"] == ["safety: distant-stop seed 3"] and verdict["recipe_digest"] == "d" * 64
+    assert write_index(folder) == [] and {m["name"]: m["verdict"] for m in read_index(folder)["models"]}["ice-gap"] == verdict
+    shutil.copy(folder / "ice-force.pt", folder / "ice-gap.pt")  # another file: the verdict goes with the figures
+    assert "ice-gap: its file changed" in write_index(folder)[0]
+    assert {m["name"]: m["verdict"] for m in read_index(folder)["models"]}["ice-gap"] is None
+
+
+def test_a_quick_foreign_or_unreadable_gates_report_is_refused_in_one_line(tmp_path):
+    folder = _copy(tmp_path)
+    before = (folder / INDEX_NAME).read_bytes()
+    garbage = tmp_path / "junk.json"
+    garbage.write_text("{")
+    for report, words in (
+        (_report(tmp_path, _sha256(folder / "ice-gap.pt"), quick=True), "a --quick report checks that the gates run"),
+        (garbage, "not a gates report of `vacc gates`"),
+    ):
+        done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(report)])
+        assert done.exit_code == 1 and words in done.output and done.output.count("\n") == 1, done.output
+    done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(_report(tmp_path, "0" * 64))])
+    assert done.exit_code == 1 and "which is no model of" in done.output
+    assert (folder / INDEX_NAME).read_bytes() == before
