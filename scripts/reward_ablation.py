@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from agent_client.errors import InputFileError
 from agent_client.rewards import ECO_WEIGHTS, eco_terms
+from agent_client.runlog import read_card
 
 WEIGHTINGS = {
     "shipped (1, 0.5, 0.25, 0.5)": ECO_WEIGHTS,
@@ -50,18 +52,27 @@ def mean_terms(log: Path, scenario: str) -> np.ndarray:
     return np.mean(terms, axis=0)
 
 
+def run_scenario(log: Path) -> str:
+    """The scenario ("ice" or "ev") a run log's card records; a log without one is refused."""
+    try:
+        card = read_card(log)
+    except InputFileError as exc:
+        sys.exit(str(exc))
+    scenario = ((card or {}).get("episode") or {}).get("scenario")
+    if scenario not in ("ice", "ev"):
+        sys.exit(f"{log}: its run card does not say the scenario (ice or ev)")
+    return scenario
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("run", type=Path, help="a `vacc evaluate --out` folder (its logs/)")
     a = p.parse_args()
-    scenario = "ev" if "ev" in a.run.name else "ice"
-    terms = {}
-    for m in FOLLOWERS:
-        logs = sorted((a.run / "logs").glob(f"{m}-*.csv"))
-        if logs:
-            terms[m] = np.mean([mean_terms(f, scenario) for f in logs], axis=0)
-    if not terms:
+    logs = {m: sorted((a.run / "logs").glob(f"{m}-*.csv")) for m in FOLLOWERS}
+    if not any(logs.values()):
         sys.exit(f"{a.run / 'logs'}: no run logs of {', '.join(FOLLOWERS)}")
+    scenario = run_scenario(next(f for fs in logs.values() for f in fs))
+    terms = {m: np.mean([mean_terms(f, scenario) for f in fs], axis=0) for m, fs in logs.items() if fs}
     print("mean terms per step (gap/10, -energy, -comfort, -closing):")
     for m, t in terms.items():
         print(f"  {m:11} " + " ".join(f"{x:+.4f}" for x in t))

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from agent_client.runlog import write_card
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = sorted((ROOT / "scripts").glob("*.py"))
 PRODUCT = ("vacc", "agent_client", "sim_server", "protocol", "energy")
@@ -76,11 +78,27 @@ def test_fit_ev_model_prints_the_fit_and_the_held_out_cycle():
     assert "wrote" not in result.stdout
 
 
-def _log(path: Path, v: float, gap: float) -> None:
+def _log(path: Path, v: float, gap: float, scenario: str | None = "ice") -> None:
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["t", "frame", "v_host", "v_lead", "gap", "accel", "force", "collision", "a_lead"])
         w.writerows([k / 10, k, v, v, gap, 0.0, 0.0, 0, 0.0] for k in range(50))
+    if scenario is not None:
+        write_card(path, {"episode": {"scenario": scenario, "trajectory": "test-1", "seed": 0}})
+
+
+def test_reward_ablation_reads_the_scenario_from_the_run_cards_not_the_folder_name(tmp_path):
+    """A folder named eval-ev... of ICE runs is scored as ICE; a log without a card is refused."""
+    run_dir = tmp_path / "eval-every-method"
+    (run_dir / "logs").mkdir(parents=True)
+    _log(run_dir / "logs" / "acc-test-1.csv", 20.0, 40.0, scenario=None)
+    result = run("reward_ablation.py", str(run_dir))
+    assert result.returncode == 1 and "its run card does not say the scenario" in result.stderr
+    _log(run_dir / "logs" / "acc-test-1.csv", 20.0, 40.0, scenario="ice")
+    ice = run("reward_ablation.py", str(run_dir))
+    _log(run_dir / "logs" / "acc-test-1.csv", 20.0, 40.0, scenario="ev")
+    ev = run("reward_ablation.py", str(run_dir))
+    assert ice.returncode == ev.returncode == 0 and ice.stdout != ev.stdout  # the energy term is the vehicle's
 
 
 def test_reward_ablation_ranks_a_close_follower_above_a_far_one(tmp_path):
