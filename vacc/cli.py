@@ -29,6 +29,7 @@ COMMANDS = {
     "gates": "vacc.gates:gates",
     "models": "vacc.models_cmd:models",
     "reproduce": "vacc.reproduce:reproduce_command",
+    "seeds": "vacc.seeds_cmd:seeds",
     "video": "vacc.video:video",
     "plot": "vacc.plot:plot",
 }

@@ -1,0 +1,60 @@
+"""vacc seeds: gate reports over training seeds -> pass share and IQM intervals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from vacc.cli import main
+from vacc.seeds_cmd import seed_summary
+from vacc.stats import iqm
+
+RMSE = {  # per seed: test-1..4 gap RMSE
+    0: [2.5, 2.6, 2.4, 2.7],
+    1: [2.9, 3.0, 2.8, 3.6],  # test-4 over the 3.4 m bound
+    2: [2.4, 2.5, 2.3, 2.6],
+}
+
+
+def _report(folder: Path, seed: int, **change) -> Path:
+    checks = [{"gate": "tests", "what": f"test-{i + 1} gap RMSE (m)", "figure": x, "bound": 3.4, "passed": x <= 3.4} for i, x in enumerate(RMSE[seed])]
+    checks.append({"gate": "safety", "what": "stopped: runs passed", "figure": 10.0, "bound": 10.0, "passed": True, "detail": "min gap 3.1 m"})
+    report = {"recipe": "ice-gap", "recipe_digest": "a" * 64, "sha256": f"{seed:064d}", "quick": False, "checks": checks, **change}
+    path = folder / f"seed{seed}" / "gates.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report))
+    return path
+
+
+def test_the_summary_counts_passing_seeds_and_gives_each_checks_iqm_over_seeds(tmp_path):
+    reports = [json.loads(_report(tmp_path, s).read_text()) for s in RMSE]
+    s = seed_summary(reports)
+    assert s["seeds"] == 3 and s["passed_every_gate"] == 2
+    row = next(c for c in s["checks"] if c["what"] == "test-4 gap RMSE (m)")
+    assert row["passed"] == 2 and row["n"] == 3
+    assert row["iqm"] == pytest.approx(float(iqm(np.array([2.7, 3.6, 2.6]))))
+    assert row["low"] <= row["iqm"] <= row["high"]
+    pooled = s["pooled_tests"]
+    assert pooled["n"] == 12 and pooled["low"] <= pooled["iqm"] <= pooled["high"]
+    assert pooled["iqm"] == pytest.approx(float(iqm(np.array([x for xs in RMSE.values() for x in xs]))))
+
+
+def test_the_command_prints_the_table_and_refuses_mixed_quick_or_repeated_reports(tmp_path):
+    paths = [str(_report(tmp_path, s)) for s in RMSE]
+    done = CliRunner().invoke(main, ["seeds", *paths, "--json", str(tmp_path / "s.json")])
+    assert done.exit_code == 0, done.output
+    assert done.output.startswith("ice-gap: 2 of 3 seeds pass every gate")
+    assert "| tests | test-4 gap RMSE (m) | 2/3 |" in done.output and "stratified by trajectory" in done.output
+    assert json.loads((tmp_path / "s.json").read_text())["passed_every_gate"] == 2
+    other = tmp_path / "other"
+    for extra, words in (
+        (_report(other, 0, recipe_digest="b" * 64), "summarise one recipe's seeds at a time"),
+        (_report(other, 1, quick=True), "a --quick report"),
+        (Path(paths[0]), "the same checkpoint as"),
+    ):
+        done = CliRunner().invoke(main, ["seeds", *paths, str(extra)])
+        assert done.exit_code == 1 and words in done.output and done.output.count("\n") == 1, done.output

@@ -1,0 +1,116 @@
+"""``vacc seeds``: a recipe's gate reports over training seeds, as rliable would summarise them.
+
+Each ``gates.json`` is one training seed's model checked against its recipe
+(``vacc reproduce MODEL --seed N`` ends with one). Over the seeds this gives:
+
+* the share of seeds whose model passes every gate, and each check's pass share;
+* each check's figure as the interquartile mean over seeds with a 95 % percentile
+  bootstrap interval (:mod:`vacc.stats`), and the test trajectories' gap RMSE pooled
+  with the interval stratified by trajectory (rliable's ``StratifiedBootstrap``).
+
+Agarwal et al. 2021: with 3-10 runs, report the IQM and its interval, not a best seed.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import click
+
+from vacc.stats import CONFIDENCE, Estimate, bootstrap_ci, iqm
+
+__all__ = ["read_reports", "seed_summary", "summary_table", "seeds"]
+
+POOLED_TESTS = ("tests", "gap RMSE (m)")  # the per-trajectory checks pooled in one row
+
+
+def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
+    """The gate reports, checked to be of one recipe, full (not --quick) and of distinct models.
+
+    Raises:
+        click.ClickException: one line naming the file and what is wrong.
+    """
+    reports = []
+    for path in paths:
+        try:
+            report = json.loads(path.read_text())
+            _ = (report["recipe"], report["recipe_digest"], report["sha256"], report["checks"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise click.ClickException(f"{path}: not a gates report of `vacc gates` ({exc})") from None
+        if report.get("quick"):
+            raise click.ClickException(f"{path}: a --quick report checks that the gates run, not the model")
+        reports.append({**report, "path": str(path)})
+    first = reports[0]
+    for r in reports[1:]:
+        if (r["recipe"], r["recipe_digest"]) != (first["recipe"], first["recipe_digest"]):
+            raise click.ClickException(
+                f"{r['path']}: recipe {r['recipe']} ({r['recipe_digest'][:12]}), but {first['path']} is of "
+                f"{first['recipe']} ({first['recipe_digest'][:12]}): summarise one recipe's seeds at a time"
+            )
+    seen: dict[str, str] = {}
+    for r in reports:
+        if r["sha256"] in seen:
+            raise click.ClickException(f"{r['path']}: the same checkpoint as {seen[r['sha256']]} (SHA-256 {r['sha256'][:12]}): one report per seed")
+        seen[r["sha256"]] = r["path"]
+    return reports
+
+
+def _estimate(tasks: list[list[float]]) -> Estimate:
+    return bootstrap_ci(tasks, iqm)
+
+
+def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Pass shares and IQM intervals over the reports (one per seed).
+
+    A check missing from some report (a recipe's gates changed) is summarised over the
+    reports that have it; ``n`` says how many.
+    """
+    rows: dict[tuple[str, str], dict[str, Any]] = {}
+    for r in reports:
+        for c in r["checks"]:
+            row = rows.setdefault((c["gate"], c["what"]), {"gate": c["gate"], "what": c["what"], "bound": c["bound"], "figures": [], "passed": 0})
+            row["figures"].append(float(c["figure"]))
+            row["passed"] += bool(c["passed"])
+    out = []
+    for row in rows.values():
+        est = _estimate([row["figures"]])
+        out.append({**row, "n": len(row["figures"]), "iqm": est.value, "low": est.low, "high": est.high})
+    per_test = [row["figures"] for (gate, what), row in rows.items() if gate == POOLED_TESTS[0] and what.endswith(POOLED_TESTS[1]) and what.startswith("test-")]
+    pooled = None
+    if per_test:
+        est = _estimate(per_test)
+        pooled = {"what": "test-1..4 gap RMSE (m), stratified by trajectory", "iqm": est.value, "low": est.low, "high": est.high, "n": est.n}
+    passed_all = sum(all(c["passed"] for c in r["checks"]) for r in reports)
+    return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled}
+
+
+def summary_table(s: dict[str, Any]) -> str:
+    """The summary as Markdown: the pass share, then one row per check."""
+    ci = f"{CONFIDENCE:.0%}"
+    lines = [
+        f"{s['recipe']}: {s['passed_every_gate']} of {s['seeds']} seeds pass every gate",
+        "",
+        f"| gate | check | seeds passed | IQM over seeds [{ci} CI] | bound |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for c in s["checks"]:
+        lines.append(f"| {c['gate']} | {c['what']} | {c['passed']}/{c['n']} | {c['iqm']:.3f} [{c['low']:.3f}, {c['high']:.3f}] | {c['bound']:g} |")
+    if (p := s["pooled_tests"]) is not None:
+        lines.append(f"| tests | {p['what']} | | {p['iqm']:.3f} [{p['low']:.3f}, {p['high']:.3f}] | |")
+    return "\n".join(lines)
+
+
+@click.command("seeds")
+@click.argument("reports", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the summary as JSON.")
+def seeds(reports: tuple[str, ...], json_out: str | None) -> None:
+    """Summarise one recipe's gate reports over training seeds (each a gates.json of
+    `vacc gates` or `vacc reproduce --seed N`): the share of seeds that pass every gate,
+    and each check's interquartile mean with a 95 % bootstrap interval."""
+    summary = seed_summary(read_reports([Path(p) for p in reports]))
+    click.echo(summary_table(summary))
+    if json_out is not None:
+        Path(json_out).write_text(json.dumps(summary, indent=1) + "\n")
