@@ -65,7 +65,7 @@ def serve(
 ) -> None:
     """Run a simulator server: one world, lockstep over UDP.
 
-    Prints 'vacc-server listening on HOST:PORT' once bound, then serves until
+    Prints 'vacc-server listening on HOST:PORT' on stdout once bound, then serves until
     interrupted. Counters of served and rejected datagrams are printed at exit.
     """
     logging.basicConfig(stream=sys.stderr, level=log_level.upper(), format="%(message)s")  # a no-op under `vacc -v`: it set logging up
