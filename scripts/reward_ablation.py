@@ -71,8 +71,7 @@ def main() -> None:
     logs = {m: sorted((a.run / "logs").glob(f"{m}-*.csv")) for m in FOLLOWERS}
     if not any(logs.values()):
         sys.exit(f"{a.run / 'logs'}: no run logs of {', '.join(FOLLOWERS)}")
-    scenario = run_scenario(next(f for fs in logs.values() for f in fs))
-    terms = {m: np.mean([mean_terms(f, scenario) for f in fs], axis=0) for m, fs in logs.items() if fs}
+    terms = {m: np.mean([mean_terms(f, run_scenario(f)) for f in fs], axis=0) for m, fs in logs.items() if fs}
     print("mean terms per step (gap/10, -energy, -comfort, -closing):")
     for m, t in terms.items():
         print(f"  {m:11} " + " ".join(f"{x:+.4f}" for x in t))

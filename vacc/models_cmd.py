@@ -87,7 +87,7 @@ def write_index(folder: Path, out: Path | None = None) -> list[str]:
         entry = model_entry(path, before.get("gates"), before.get("verdict"))
         if before and before.get("sha256") != entry["sha256"] and (entry["gates"] is not None or entry["verdict"] is not None):
             entry["gates"] = entry["verdict"] = None
-            notes.append(f"{path.stem}: its file changed; its gate figures were dropped (measure them again)")
+            notes.append(f"{path.stem}: its file changed; its gate figures and verdict were dropped (measure them again)")
         elif entry["gates"] is None:
             notes.append(f"{path.stem}: no gate figures")
         entries.append(entry)
@@ -112,10 +112,17 @@ def record_gates(folder: Path, report_path: Path) -> str:
         raise click.ClickException(f"{report_path}: not a gates report of `vacc gates` ({exc})") from None
     if report.get("quick"):
         raise click.ClickException(f"{report_path}: a --quick report checks that the gates run, not the model: run `vacc gates` without --quick")
+    if not checks:
+        raise click.ClickException(f"{report_path}: the report holds no check (its recipe declares no gates)")
     index = read_index(folder)
-    entry = next((m for m in index["models"] if m.get("sha256") == sha), None)
-    if entry is None:
+    entries = [m for m in index["models"] if m.get("sha256") == sha]
+    if not entries:
         raise click.ClickException(f"{report_path}: it checked a file of SHA-256 {sha[:12]}, which is no model of {folder / INDEX_NAME}")
+    if len(entries) > 1:
+        raise click.ClickException(f"{report_path}: {', '.join(m['name'] for m in entries)} are the same file (SHA-256 {sha[:12]}): which one it checked is not known")
+    entry = entries[0]
+    if report.get("recipe") != entry["name"]:
+        raise click.ClickException(f"{report_path}: it checked {entry['name']}'s file against the gates of {report.get('recipe')}: record a report of {entry['name']}'s own recipe")
     entry["verdict"] = {
         "passed": not failed, "checks_passed": len(checks) - len(failed), "checks": len(checks), "failed": failed,
         "recipe": report.get("recipe"), "recipe_digest": report.get("recipe_digest"), "measured_by": "vacc gates",

@@ -38,7 +38,7 @@ from agent_client.rl.checkpoint import (
     with_decision,
 )
 from agent_client.rl.config import Config, single_stream_only
-from agent_client.rl.stop import install_stop_handlers, stop_exit_code
+from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
@@ -198,12 +198,16 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
+        if STOP.is_set():  # a signal between two stages, or in a surgery stage
+            raise KeyboardInterrupt
         if progress:
             click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
         done[stage.name] = run_stage(recipe, stage, out, done, opts)
     last = recipe.stages[-1].name
     final = out / f"{recipe.name}.pt"
     shutil.copyfile(out / last / f"{last}.pt", final)
+    if STOP.is_set():
+        raise KeyboardInterrupt
     return evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
 
 
@@ -228,12 +232,12 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
         recipe = load_recipe(model_or_recipe)
     except RecipeError as exc:
         raise click.ClickException(str(exc)) from None
-    install_stop_handlers("vacc reproduce", "; the same command continues")
-    try:
-        report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs)
-    except KeyboardInterrupt:
-        click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
-        raise SystemExit(stop_exit_code()) from None
+    with stop_handlers("vacc reproduce", "; the same command continues"):
+        try:
+            report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs)
+        except KeyboardInterrupt:
+            click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
+            raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
     click.echo(f"Wrote {out}/{recipe.name}.pt and {out}/gates/gates.json")
     if not report["passed"] and not smoke:

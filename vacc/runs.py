@@ -21,6 +21,7 @@ import click
 
 from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.progress import progress_bar
+from agent_client.rl.stop import STOP, handlers_active, worker_signals
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
 from energy.metrics import Metrics
 from protocol.scenarios import GAP_LIMIT, TEST_DURATION, TEST_TRAJECTORIES
@@ -154,12 +155,20 @@ def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
                     raise click.ClickException(f"a run failed: {exc}") from None
                 bar.update(1)
         return
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work))) as pool, progress_bar(len(work), label, unit="run") as bar:
+    stoppable = handlers_active()  # inside vacc reproduce: a first signal stops after the runs in flight
+    init = worker_signals if stoppable else None
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work)), initializer=init) as pool, progress_bar(len(work), label, unit="run") as bar:
         futures = [pool.submit(run_job, j) for j in work]
         try:
             for fut in as_completed(futures):
                 fut.result()
                 bar.update(1)
+                if stoppable and STOP.is_set():
+                    raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            for f in futures:
+                f.cancel()
+            raise
         except Exception as exc:
             for f in futures:
                 f.cancel()

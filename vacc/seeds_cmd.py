@@ -14,6 +14,8 @@ Agarwal et al. 2021: with 3-10 runs, report the IQM and its interval, not a best
 from __future__ import annotations
 
 import json
+import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,7 @@ from vacc.stats import CONFIDENCE, Estimate, bootstrap_ci, iqm
 __all__ = ["read_reports", "seed_summary", "summary_table", "seeds"]
 
 POOLED_TESTS = ("tests", "gap RMSE (m)")  # the per-trajectory checks pooled in one row
+LEGACY_DETAIL = re.compile(r" \(min gap [^)]*\)$")  # reports before Check.detail named the closest gap in "what"
 
 
 def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
@@ -37,7 +40,9 @@ def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
     for path in paths:
         try:
             report = json.loads(path.read_text())
-            _ = (report["recipe"], report["recipe_digest"], report["sha256"], report["checks"])
+            _ = (report["recipe"], report["recipe_digest"], report["sha256"])
+            for c in report["checks"]:
+                _ = (c["gate"], c["what"], float(c["figure"]), c["bound"], bool(c["passed"]))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise click.ClickException(f"{path}: not a gates report of `vacc gates` ({exc})") from None
         if report.get("quick"):
@@ -58,8 +63,17 @@ def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
     return reports
 
 
-def _estimate(tasks: list[list[float]]) -> Estimate:
-    return bootstrap_ci(tasks, iqm)
+def _estimate(tasks: list[list[float]]) -> Estimate | None:
+    """IQM and interval over the finite figures (an energy ratio or a comfort figure can be
+    NaN or infinite); None when no task has one."""
+    finite = [[x for x in t if math.isfinite(x)] for t in tasks]
+    finite = [t for t in finite if t]
+    return bootstrap_ci(finite, iqm) if finite else None
+
+
+def _what(check: dict[str, Any]) -> str:
+    """The check's name; a report before the detail field carried the closest gap in it."""
+    return LEGACY_DETAIL.sub("", check["what"])
 
 
 def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -71,17 +85,19 @@ def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
     rows: dict[tuple[str, str], dict[str, Any]] = {}
     for r in reports:
         for c in r["checks"]:
-            row = rows.setdefault((c["gate"], c["what"]), {"gate": c["gate"], "what": c["what"], "bound": c["bound"], "figures": [], "passed": 0})
+            what = _what(c)
+            row = rows.setdefault((c["gate"], what), {"gate": c["gate"], "what": what, "bound": c["bound"], "figures": [], "passed": 0})
             row["figures"].append(float(c["figure"]))
             row["passed"] += bool(c["passed"])
     out = []
     for row in rows.values():
         est = _estimate([row["figures"]])
-        out.append({**row, "n": len(row["figures"]), "iqm": est.value, "low": est.low, "high": est.high})
+        nan = float("nan")
+        out.append({**row, "n": len(row["figures"]), "non_finite": sum(not math.isfinite(x) for x in row["figures"]),
+                    "iqm": est.value if est else nan, "low": est.low if est else nan, "high": est.high if est else nan})  # fmt: skip
     per_test = [row["figures"] for (gate, what), row in rows.items() if gate == POOLED_TESTS[0] and what.endswith(POOLED_TESTS[1]) and what.startswith("test-")]
     pooled = None
-    if per_test:
-        est = _estimate(per_test)
+    if per_test and (est := _estimate(per_test)) is not None:
         pooled = {"what": "test-1..4 gap RMSE (m), stratified by trajectory", "iqm": est.value, "low": est.low, "high": est.high, "n": est.n}
     passed_all = sum(all(c["passed"] for c in r["checks"]) for r in reports)
     return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled}
@@ -97,7 +113,10 @@ def summary_table(s: dict[str, Any]) -> str:
         "| --- | --- | --- | --- | --- |",
     ]
     for c in s["checks"]:
-        lines.append(f"| {c['gate']} | {c['what']} | {c['passed']}/{c['n']} | {c['iqm']:.3f} [{c['low']:.3f}, {c['high']:.3f}] | {c['bound']:g} |")
+        value = "n/a" if not math.isfinite(c["iqm"]) else f"{c['iqm']:.3f} [{c['low']:.3f}, {c['high']:.3f}]"
+        if c["non_finite"]:
+            value += f" ({c['non_finite']} non-finite left out)"
+        lines.append(f"| {c['gate']} | {c['what']} | {c['passed']}/{c['n']} | {value} | {c['bound']:g} |")
     if (p := s["pooled_tests"]) is not None:
         lines.append(f"| tests | {p['what']} | | {p['iqm']:.3f} [{p['low']:.3f}, {p['high']:.3f}] | |")
     return "\n".join(lines)

@@ -37,7 +37,7 @@ from agent_client.rl.config import (
     config_from,
     single_stream_only,
 )
-from agent_client.rl.stop import install_stop_handlers, stop_cause, stop_exit_code
+from agent_client.rl.stop import stop_cause, stop_exit_code, stop_handlers
 from protocol.scenarios import SCENARIOS
 
 __all__ = ["train", "config_options"]
@@ -136,8 +136,6 @@ def make_config(values: dict[str, Any]) -> Config:
         return Config(**kw)
     except ConfigError as exc:
         raise click.BadParameter(str(exc), param_hint=option_name(exc.field)) from None
-
-
 
 
 CONFIG_GIVEN = "vacc.train.config"  # ctx.meta key: --config was given
@@ -285,35 +283,37 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
         raise click.UsageError(f"--init-from {cfg.init_from} is a file of the run in --out {run}, which --overwrite removes: copy it elsewhere first")
     # The first Ctrl-C or `kill` stops with a checkpoint; a second aborts through SystemExit,
     # whose finally blocks reap the spawned servers and actors.
-    install_stop_handlers("vacc train", "")
-    try:
-        if use_ray:
-            from agent_client.rl.distributed import import_ray
+    with stop_handlers("vacc train", ""):
+        try:
+            if use_ray:
+                from agent_client.rl.distributed import import_ray
 
-            import_ray()  # before any work: say how to install it
-        for path in old_files:  # else TensorBoard mixes both runs' events, and an old best.pt passes for ours
-            try:
-                path.unlink(missing_ok=True)
-            except OSError as exc:
-                raise click.ClickException(f"--overwrite: cannot remove {path} ({exc.strerror or exc})") from None
-        if old_files:
-            click.echo(f"vacc train: --overwrite removed {len(old_files)} files of the previous run in {run}", err=True)
-        if distributed:
-            from agent_client.rl.distributed import train_distributed
+                import_ray()  # before any work: say how to install it
+            for path in old_files:  # else TensorBoard mixes both runs' events, and an old best.pt passes for ours
+                try:
+                    path.unlink(missing_ok=True)
+                except OSError as exc:
+                    raise click.ClickException(f"--overwrite: cannot remove {path} ({exc.strerror or exc})") from None
+            if old_files:
+                click.echo(f"vacc train: --overwrite removed {len(old_files)} files of the previous run in {run}", err=True)
+            if distributed:
+                from agent_client.rl.distributed import train_distributed
 
-            summary = train_distributed(cfg, out, resume=resume, progress=not quiet, use_ray=use_ray,
-                                        ray_address=ray_address, actor_cpus=actor_cpus, max_restarts=max_restarts)  # fmt: skip
-        else:
-            from agent_client.rl.train import train as run_training
+                summary = train_distributed(cfg, out, resume=resume, progress=not quiet, use_ray=use_ray,
+                                            ray_address=ray_address, actor_cpus=actor_cpus, max_restarts=max_restarts)  # fmt: skip
+            else:
+                from agent_client.rl.train import train as run_training
 
-            summary = run_training(cfg, out, resume=resume, progress=not quiet)
-    except ClientError as exc:
-        raise click.ClickException(str(exc)) from None
-    except OSError as exc:  # a run folder's file (scalars.csv, events): one line naming it
-        raise click.ClickException(f"{exc.filename or run}: could not be written: {write_cause(exc)}") from None
+                summary = run_training(cfg, out, resume=resume, progress=not quiet)
+        except ClientError as exc:
+            raise click.ClickException(str(exc)) from None
+        except OSError as exc:  # a run folder's file (scalars.csv, events): one line naming it
+            raise click.ClickException(f"{exc.filename or run}: could not be written: {write_cause(exc)}") from None
+        cause, code = stop_cause(), stop_exit_code()
+
     click.echo(f"trained {summary['steps']} steps, {summary['episodes']} episodes in {summary['wall_s']:.0f} s -> {out}")
     if summary.get("stopped"):
-        click.echo(f"stopped by {stop_cause()} at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
+        click.echo(f"stopped by {cause} at step {summary['steps']}; continue with: {_resume_command(click.get_current_context(), run)}")
     if distributed:
         click.echo(
             f"  {summary['servers']} actors ({summary['backend']}): transitions {summary['transitions_by_actor']}, "
@@ -326,4 +326,4 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     except OutputFileError as exc:
         raise click.ClickException(str(exc)) from None
     if summary.get("stopped"):
-        raise SystemExit(stop_exit_code())  # as the signal ends a program, but with the run saved
+        raise SystemExit(code)  # as the signal ends a program, but with the run saved

@@ -125,7 +125,6 @@ class EnvironmentSettings:
         check_environment(self)
 
 
-
 @dataclass(frozen=True)
 class DQNSettings:
     """The Double DQN's schedule, sizes and rates."""
@@ -179,7 +178,6 @@ class DQNSettings:
         check_dqn(self)
 
 
-
 @dataclass(frozen=True)
 class NetworkSettings:
     """What the network sees and its widths."""
@@ -203,7 +201,6 @@ class NetworkSettings:
         check_network(self)
 
 
-
 @dataclass(frozen=True)
 class EvaluationSettings:
     """The evaluations that pick best.pt."""
@@ -219,7 +216,6 @@ class EvaluationSettings:
 
     def __post_init__(self) -> None:
         check_evaluation(self)
-
 
 
 @dataclass(frozen=True)
@@ -244,7 +240,6 @@ class TeacherSettings:
         check_teacher(self)
 
 
-
 @dataclass(frozen=True)
 class AuxiliarySettings:
     """The auxiliary heads' and the brake margin's weights."""
@@ -258,7 +253,6 @@ class AuxiliarySettings:
 
     def __post_init__(self) -> None:
         check_auxiliary(self)
-
 
 
 @dataclass(frozen=True)
@@ -284,7 +278,6 @@ class DecisionSettings:
         check_decision(self)
 
 
-
 @dataclass(frozen=True)
 class StreamsSettings:
     """The K-stream trainer's sizes."""
@@ -298,7 +291,6 @@ class StreamsSettings:
 
     def __post_init__(self) -> None:
         check_streams(self)
-
 
 
 @dataclass(frozen=True)

@@ -115,6 +115,7 @@ from agent_client.rl.learner import SESSION_TIMEOUT, STOP, Learner
 from agent_client.rl.network import N_ACTIONS, QNetwork, greedy_action, linear_schedule
 from agent_client.rl.replay import StreamReplay
 from agent_client.rl.scalars import Progress
+from agent_client.rl.stop import reinstall_stop_handler
 
 __all__ = [
     "StreamActor",
@@ -519,6 +520,7 @@ class _RayPool:
             # A local instance listens on loopback only; a cluster address is the user's call.
             local = address is None and not os.environ.get("RAY_ADDRESS")
             ray.init(address=address, include_dashboard=False, **({"_node_ip_address": "127.0.0.1"} if local else {}))
+            reinstall_stop_handler()  # ray.init takes SIGTERM for an exit at once: a kill still checkpoints
         try:
             cpus = ray.cluster_resources().get("CPU", 0.0)
             need = cfg.servers * actor_cpus
@@ -841,8 +843,8 @@ def _run_streams(loop: _StreamsLoop, pool: _LocalPool | _RayPool) -> float:
         last_data = time.monotonic()
         while True:
             loop.learn(pool)
-            stopping = STOP.is_set()  # the first Ctrl-C: keep what was learned, resumable
             finished = loop.step >= cfg.total_steps
+            stopping = STOP.is_set() and not finished  # the first Ctrl-C: keep what was learned, resumable
             if loop.step >= next_log or finished:
                 loop.log_actors(pool)
                 next_log = (loop.step // cfg.log_every + 1) * cfg.log_every
@@ -895,5 +897,5 @@ def _summary(loop: _StreamsLoop, learner: Learner, replay: StreamReplay, cfg: Co
         "restarts_by_actor": [r - r0 for r, r0 in zip(loop.restarts_by_actor, loop.restarts_at_start, strict=True)],
         "actor_pids": sorted(loop.pids),
         "replay_bytes_per_transition": replay.nbytes / replay.capacity,
-        "stopped": STOP.is_set(),
+        "stopped": STOP.is_set() and loop.step < cfg.total_steps,  # a stop at the last step finished the run
     }

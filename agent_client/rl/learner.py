@@ -62,7 +62,6 @@ EVAL_PARALLEL = 4  # evaluation episodes run at once, each with its own server
 MALLOC_KEEP = 1 << 30  # [B] freed memory glibc keeps for reuse instead of returning it to the OS
 
 
-
 def keep_freed_memory() -> None:
     """Let glibc reuse freed blocks instead of mapping fresh pages for every tensor.
 

@@ -1,9 +1,9 @@
 """Stopping a training by signal.
 
-The first SIGINT (Ctrl-C) or SIGTERM (``kill``, a batch system's pre-emption) sets
+Inside :func:`stop_handlers`, the first SIGINT (Ctrl-C) or SIGTERM (``kill PID``) sets
 :data:`STOP`: the loop ends at its next step with a checkpoint, and the run resumes.
-A second signal aborts at once (``SystemExit``; the ``finally`` blocks reap servers
-and actors).
+The step in flight finishes first (an evaluation, a checkpoint being written). A second
+signal aborts at once (``SystemExit``; the ``finally`` blocks reap servers and actors).
 
 The first signal does not raise: an exception raised from a handler can land while a
 library thread's lock is held (TensorBoard's event-writer queue), and the clean-up
@@ -12,22 +12,27 @@ after it would then wait on that lock forever.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import threading
+from collections.abc import Iterator
 
-import click
-
-__all__ = ["STOP", "install_stop_handlers", "stop_exit_code", "stop_cause"]
+__all__ = ["STOP", "stop_handlers", "reinstall_stop_handler", "stop_exit_code", "stop_cause", "worker_signals", "handlers_active"]
 
 # Set by the first SIGINT or SIGTERM to end either training loop at its next step with a checkpoint.
 STOP = threading.Event()
 _first_signal: list[int] = []  # the signal that set STOP
+_handler: list[object] = []  # the handler installed by the innermost stop_handlers
 
 _NAMES: dict[int, str] = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-def install_stop_handlers(prog: str, then: str) -> None:
-    """Handle SIGINT and SIGTERM in the main thread; ``then`` says what follows the stop."""
+@contextlib.contextmanager
+def stop_handlers(prog: str, then: str) -> Iterator[None]:
+    """Handle SIGINT and SIGTERM (main thread) for the block; ``then`` says what follows
+    the stop. On leaving, the previous handlers come back and :data:`STOP` is cleared."""
 
     def handler(signum: int, frame: object) -> None:
         if STOP.is_set():
@@ -35,10 +40,42 @@ def install_stop_handlers(prog: str, then: str) -> None:
         _first_signal[:] = [signum]
         STOP.set()
         again = "Ctrl-C" if signum == signal.SIGINT else "signal"
-        click.echo(f"\n{prog}: {_NAMES.get(signum, 'signal')}: stopping after this step with a checkpoint{then} ({again} again to abort)", err=True)
+        # os.write, not print: a handler that runs inside a write to stderr (a progress
+        # bar's) must not write through the same buffer.
+        os.write(2, f"\n{prog}: {_NAMES.get(signum, 'signal')}: stopping after this step with a checkpoint{then} ({again} again to abort)\n".encode())
 
-    signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGINT, handler)
+    previous = {s: signal.getsignal(s) for s in SIGNALS}
+    for s in SIGNALS:
+        signal.signal(s, handler)
+    _handler.append(handler)
+    try:
+        yield
+    finally:
+        _handler.pop()
+        for s, h in previous.items():
+            signal.signal(s, h)
+        STOP.clear()
+        _first_signal.clear()
+
+
+def reinstall_stop_handler() -> None:
+    """Put the stop handler back on SIGTERM after a library took it (``ray.init`` installs
+    its own, which exits at once); nothing outside :func:`stop_handlers`."""
+    if _handler and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _handler[-1])  # type: ignore[arg-type]
+
+
+def worker_signals() -> None:
+    """(A pool worker forked inside :func:`stop_handlers`) leave Ctrl-C to the parent, which
+    stops after the jobs in flight, and die of SIGTERM: a forked worker would otherwise
+    inherit the stop handler, print the stop message and go on."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def handlers_active() -> bool:
+    """Whether a :func:`stop_handlers` block is running (this process handles the stop)."""
+    return bool(_handler)
 
 
 def stop_cause() -> str:

@@ -129,7 +129,7 @@ def train(
         "last_eval": learner.last_eval,
         "wall_s": wall_s,
         "schedule": cfg.schedule,
-        "stopped": STOP.is_set(),
+        "stopped": STOP.is_set() and state.global_step < cfg.total_steps,  # a stop at the last step finished the run
         "replay_bytes_per_transition": memory.nbytes / memory.capacity,
     }
 
@@ -182,7 +182,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                                     ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()), ("epsilon", epsilon)):  # fmt: skip
                     log.add(f"charts/{name}", value, state.global_step)
             state.recent_returns = list(recent)
-            if STOP.is_set():  # asked to stop: keep what was learned, resumable
+            if STOP.is_set() and state.global_step < cfg.total_steps:  # asked to stop: keep what was learned, resumable
                 learner.checkpoint(asdict(state), memory)
                 break
             _evaluate_and_checkpoint(cfg, learner, memory, state, grid)

@@ -79,7 +79,7 @@ def test_a_file_that_is_not_the_indexed_model_is_flagged(tmp_path):
     assert f"MISSING {folder / 'ice-force.pt'}" in done.stderr and f"NOT INDEXED {folder / 'ev-gap.pt'}" in done.stderr
     # re-made: the changed file loses the figures measured on the other one, the new file has none
     notes = write_index(folder)
-    assert notes == ["ev-gap: no gate figures", "ice-gap: its file changed; its gate figures were dropped (measure them again)"]
+    assert notes == ["ev-gap: no gate figures", "ice-gap: its file changed; its gate figures and verdict were dropped (measure them again)"]
     entries = {m["name"]: m for m in read_index(folder)["models"]}
     assert sorted(entries) == ["ev-gap", "ice-gap"] and entries["ice-gap"]["gates"] is None
     assert entries["ice-gap"]["sha256"] == _sha256(MODELS / "ice-eco.pt") and entries["ice-gap"]["action"] == "ramp-fine"
@@ -136,4 +136,7 @@ def test_a_quick_foreign_or_unreadable_gates_report_is_refused_in_one_line(tmp_p
         assert done.exit_code == 1 and words in done.output and done.output.count("\n") == 1, done.output
     done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(_report(tmp_path, "0" * 64))])
     assert done.exit_code == 1 and "which is no model of" in done.output
+    other = _report(tmp_path, _sha256(folder / "ice-force.pt"))  # ice-force's file, against ice-gap's gates
+    done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(other)])
+    assert done.exit_code == 1 and "it checked ice-force's file against the gates of ice-gap" in done.output
     assert (folder / INDEX_NAME).read_bytes() == before

@@ -61,6 +61,8 @@ def test_the_command_writes_the_table_of_all_nine_files_and_refuses_what_it_woul
         (["--methods", "acc,ddqn"], "drives platoons of acc, hdm, mixed"),
         (["--seeds", "0-3"], "--seeds"),
         (["--scenario", "ev"], "--scenario"),
+        (["--jobs", "3"], "--jobs"),
+        (["--model", "x=y.pt"], "--model"),
     ):
         result = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--out", str(out), *args])
         assert result.exit_code == 2 and words in result.output, result.output

@@ -58,3 +58,26 @@ def test_the_command_prints_the_table_and_refuses_mixed_quick_or_repeated_report
     ):
         done = CliRunner().invoke(main, ["seeds", *paths, str(extra)])
         assert done.exit_code == 1 and words in done.output and done.output.count("\n") == 1, done.output
+
+
+def test_a_non_finite_figure_is_left_out_of_the_interval_and_said(tmp_path):
+    paths = [_report(tmp_path, s) for s in RMSE]
+    report = json.loads(paths[0].read_text())
+    report["checks"].append({"gate": "comfort", "what": "mean jerk_rms_mps3", "figure": float("nan"), "bound": 0.7, "passed": False})
+    paths[0].write_text(json.dumps(report))
+    for p in paths[1:]:
+        r = json.loads(p.read_text())
+        r["checks"].append({"gate": "comfort", "what": "mean jerk_rms_mps3", "figure": 0.6, "bound": 0.7, "passed": True})
+        p.write_text(json.dumps(r))
+    done = CliRunner().invoke(main, ["seeds", *map(str, paths)])
+    assert done.exit_code == 0, done.output
+    assert "| comfort | mean jerk_rms_mps3 | 2/3 | 0.600 [0.600, 0.600] (1 non-finite left out) |" in done.output
+
+
+def test_reports_that_named_the_closest_gap_in_the_check_group_with_the_new_ones(tmp_path):
+    paths = [_report(tmp_path, s) for s in RMSE]
+    old = json.loads(paths[0].read_text())
+    old["checks"][-1] = {"gate": "safety", "what": "stopped: runs passed (min gap 2.9 m)", "figure": 10.0, "bound": 10.0, "passed": True}
+    paths[0].write_text(json.dumps(old))
+    s = seed_summary([json.loads(p.read_text()) for p in paths])
+    assert [c["n"] for c in s["checks"] if c["gate"] == "safety"] == [3]

@@ -463,17 +463,11 @@ def test_a_full_disk_leaves_no_temporary_file_and_keeps_the_last_checkpoint(tmp_
 @pytest.fixture
 def after_a_first_ctrl_c():
     """The CLI's signal handlers installed and STOP set, as after a first Ctrl-C."""
-    from agent_client.rl.stop import STOP, install_stop_handlers
+    from agent_client.rl.stop import STOP, stop_handlers
 
-    previous = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    install_stop_handlers("vacc train", "")
-    STOP.set()
-    try:
+    with stop_handlers("vacc train", ""):
+        STOP.set()
         yield
-    finally:
-        STOP.clear()
-        signal.signal(signal.SIGINT, previous[0])
-        signal.signal(signal.SIGTERM, previous[1])
 
 
 def _ctrl_c_mid_write(path) -> None:
@@ -600,3 +594,19 @@ def test_a_bad_setting_fails_naming_its_field(bad):
     with pytest.raises(ConfigError) as info:
         Config(**bad)
     assert info.value.field == name
+
+
+def test_stop_handlers_restore_what_was_there_and_clear_the_stop():
+    """A CLI run in-process (CliRunner) leaves the test process's signals as they were."""
+    from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    with stop_handlers("vacc train", ""):
+        assert signal.getsignal(signal.SIGTERM) not in before
+        signal.raise_signal(signal.SIGTERM)  # the first: sets STOP, raises nothing
+        assert STOP.is_set() and stop_exit_code() == 143
+        with pytest.raises(SystemExit) as info:
+            signal.raise_signal(signal.SIGINT)  # the second aborts
+        assert info.value.code == 130
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    assert not STOP.is_set() and stop_exit_code() == 130

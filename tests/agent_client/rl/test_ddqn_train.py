@@ -236,6 +236,28 @@ def test_checkpoints_without_a_zoom_are_the_papers_pipeline(tmp_path):
     assert load_policy(path)[1].zoom == 1
 
 
+def test_sigterm_stops_with_a_checkpoint_and_a_second_aborts(tmp_path):
+    """`kill PID` (SIGTERM to the trainer alone): a checkpoint, exit 143 and the resume
+    command; a second kill during the stop would abort, which the first must not need."""
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "vacc", "train", "--reward", "gap", "--steps", "100000", "--learning-starts", "20",
+            "--buffer-size", "2000", "--episode-seconds", "3", "--eval-every", "0", "--checkpoint-every", "100000",
+            "--quiet", "--out", str(out)]  # fmt: skip
+    with job(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
+        deadline = time.monotonic() + 120
+        while not (out / "scalars.csv").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "training did not start"
+            time.sleep(0.2)
+        time.sleep(2)
+        tree = descendants(proc.pid)
+        proc.terminate()
+        stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143, stderr
+    assert "SIGTERM: stopping after this step with a checkpoint" in stderr and "Traceback" not in stderr, stderr
+    assert "stopped by SIGTERM at step" in stdout and "--resume" in stdout, stdout
+    assert (out / "latest.pt").exists() and wait_gone(tree) == []
+
+
 def test_first_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(tmp_path):
     """A terminal's Ctrl-C goes to the whole foreground process group: the spawned server
     must outlive it, so that the step in flight ends and the checkpoint is written."""
