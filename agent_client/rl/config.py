@@ -322,6 +322,8 @@ class Config(ActorCriticSettings, StreamsSettings, DecisionSettings, AuxiliarySe
     only fills this in."""
 
     def __post_init__(self) -> None:
+        # Each section's own check, once: a section must not call super().__post_init__(),
+        # or Config's multiple inheritance would run the others' checks again.
         for kind in SETTINGS.values():
             kind.__post_init__(self)  # type: ignore[attr-defined]
         check_across_sections(self)
