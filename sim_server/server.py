@@ -42,6 +42,11 @@ from protocol.transport import DecodeBudget, Endpoint, Received
 from sim_server.errors import SimError
 from sim_server.world import World, WorldConfig, WorldState
 
+
+class _Stopped(Exception):
+    """Raised by :meth:`SimServer.stop` into a blocked receive (a retried syscall never returns early)."""
+
+
 __all__ = ["ServerConfig", "SimServer", "BAD_MESSAGE_RATE"]
 
 # Answers to malformed messages, per source: never larger than the message, and
@@ -110,6 +115,7 @@ class SimServer:
         self.stats: Counter[str] = Counter()
         self._bad_replies = DecodeBudget(rate=BAD_MESSAGE_RATE, burst=BAD_MESSAGE_RATE)
         self._stopped = False  # set by stop(), even before serve() starts
+        self._waiting = False  # serve() is blocked in a receive
 
     def __enter__(self) -> SimServer:
         return self
@@ -122,8 +128,12 @@ class SimServer:
         self.endpoint.close()
 
     def stop(self) -> None:
-        """Ask :meth:`serve` to return after the current datagram."""
+        """Ask :meth:`serve` to return after the current datagram, or at once while it waits
+        for one, so a reaper's SIGTERM waits for no receive timeout. Call it from the serving
+        thread: a signal handler (it may raise into the wait) or the loop itself."""
         self._stopped = True
+        if self._waiting:
+            raise _Stopped
 
     def stats_line(self) -> str:
         """Counters of served and rejected datagrams, for the log at close."""
@@ -143,7 +153,13 @@ class SimServer:
                 # The client that spawned us died (even by kill -9): don't linger.
                 print("vacc-server: parent process gone, exiting", file=sys.stderr)
                 break
-            got = self.endpoint.receive(0.5)
+            self._waiting = True
+            try:
+                got = self.endpoint.receive(0.5)
+            except _Stopped:
+                break
+            finally:
+                self._waiting = False
             if got is not None:
                 self.handle(got)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import os
 import re
 import subprocess
 import sys
@@ -25,6 +26,10 @@ import pytest
 from proctools import ProcessSpawnedInUnitTest
 
 TESTS = Path(__file__).resolve().parent
+# The suite's workers share the cores: one torch (and BLAS) thread per process, else their
+# spin-waiting threads take turns on the same cores and a training runs about twice as slow.
+# Set before any test imports torch; spawned servers, clients and trainers inherit it.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 # What starts processes: the launchers, the stdlib's and Ray's process APIs, and the project's
 # entry points that spawn servers or actors (the trainers, the env, the CLI runner).
 PROCESS_WORDS = re.compile(

@@ -168,7 +168,7 @@ class DQNSettings:
     init_from: str | None = None
     """Checkpoint whose weights start the run."""
     torch_threads: int = 2
-    """CPU threads of torch."""
+    """CPU threads of torch; OMP_NUM_THREADS, when set, caps it."""
     cuda: bool = True
     """Use CUDA if available."""
     log_every: int = 500

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import random
 import sys
 from collections.abc import Callable
@@ -84,6 +85,17 @@ def keep_freed_memory() -> None:
         libc.mallopt(M_TRIM_THRESHOLD, MALLOC_KEEP)
     except (OSError, AttributeError):  # not glibc: keep its defaults
         pass
+
+
+def thread_cap(threads: int) -> int:
+    """``threads``, at most OMP_NUM_THREADS when that is a positive integer: processes that
+    share cores (a test suite's workers, several trainings) set it, since torch's threads
+    spin-wait and two processes of 2 threads each on 2 cores run twice as slow as 1 each."""
+    try:
+        cap = int(os.environ.get("OMP_NUM_THREADS", ""))
+    except ValueError:
+        return threads
+    return min(threads, cap) if cap > 0 else threads
 
 
 class UpdateLosses(NamedTuple):
@@ -187,7 +199,7 @@ class Learner:
         random.seed(cfg.seed)
         torch.manual_seed(cfg.seed)
         torch.backends.cudnn.deterministic = True
-        torch.set_num_threads(cfg.torch_threads)
+        torch.set_num_threads(thread_cap(cfg.torch_threads))
         self.rng = np.random.default_rng(cfg.seed)
         # The serial schedule draws everything from one generator (as the shipped models
         # were trained); the parallel one acts from its own, so sampling never races it.
