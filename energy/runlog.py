@@ -59,6 +59,12 @@ class RunLog:
         """Distance the host travelled [m] (trapezoid rule on v_host)."""
         return float(np.sum(0.5 * (self.v_host[1:] + self.v_host[:-1]) * np.diff(self.t)))
 
+    def chunks(self, rows: int) -> Iterator[RunLog]:
+        """The log in consecutive chunks of at most ``rows`` rows (views, no copy), as
+        :func:`iter_run_log` gives a file."""
+        for i in range(0, self.t.size, rows):
+            yield RunLog(self.path, *(getattr(self, c)[i : i + rows] for c in REQUIRED_COLUMNS))
+
 
 SEGMENT_ROWS = 65536
 """Rows in one chunk of :func:`iter_run_log` (4 MiB of columns), and in one segment of
