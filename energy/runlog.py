@@ -90,7 +90,8 @@ def read_run_log(path: str | Path) -> RunLog:
     Raises:
         RunLogError: see :func:`iter_run_log`.
     """
-    parts = list(_chunks(Path(path), SEGMENT_ROWS))
+    path = Path(path)
+    parts = list(_chunks(path, SEGMENT_ROWS))
     if len(parts) == 1:
         return RunLog(path=str(path), **parts[0])  # type: ignore[arg-type]
     # column by column, each chunk's copy freed as it goes: 8 bytes a row over the 64
