@@ -187,15 +187,18 @@ def test_a_bad_value_before_an_unreadable_row_is_named_first(tmp_path: Path) -> 
         read_run_log(path)
 
 
-def test_iter_run_log_gives_the_log_in_chunks(write_log: Callable[..., Path]) -> None:
+def test_iter_run_log_gives_the_log_in_chunks(write_log: Callable[..., Path], monkeypatch: pytest.MonkeyPatch) -> None:
     rows = make_log_rows(n=23)
     rows[5].update(gap=-0.5, collision=1)
     path = write_log(rows)
     whole = read_run_log(path)
     chunks = list(iter_run_log(path, rows=5))
     assert [c.t.size for c in chunks] == [5, 5, 5, 5, 3]
+    monkeypatch.setattr(runlog, "SEGMENT_ROWS", 5)
+    joined = read_run_log(path)  # read in chunks too
     for c in COLUMNS:
         assert np.array_equal(np.concatenate([getattr(k, c) for k in chunks]), getattr(whole, c)), c
+        assert np.array_equal(getattr(joined, c), getattr(whole, c)), c
 
 
 def test_the_whole_file_checks_come_after_the_last_chunk(write_log: Callable[..., Path]) -> None:
