@@ -12,7 +12,8 @@ Depends on numpy only and imports no other package of the project.
   speed-to-speed gains (Welch), minimum gaps and TTC, total energy.
 * :mod:`energy.openacc`: the nine OpenACC real-platoon files shipped in ``energy/data/openacc``.
 * :mod:`energy.frontier`: the least eq. 6 energy a follower with preview reaches at a gap error.
-* :mod:`energy.runlog`, :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
+* :mod:`energy.runlog` (whole or in chunks), :mod:`energy.segments` (a log in segments with
+  context, for scoring a long one), :mod:`energy.cycles`, :mod:`energy.units`, :mod:`energy.errors`.
 * :func:`write_params`, :func:`data_path`: the fitted parameters in ``energy/data``, for the
   calibration scripts of ``scripts/``.
 """

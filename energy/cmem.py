@@ -22,17 +22,21 @@ data and calibrated (``scripts/calibrate_cmem.py``). :data:`AVERAGE_PAPER_ERA` i
 the paper-era "average" category (NCHRP 25-11 Table 4.4 as given in the project
 notes, a Tier-1 light-duty truck, unverified) for comparing magnitudes with the
 paper's Table 3; its body is assumed.
+
+Per-mile figures of a trace (:func:`per_mile`) are sums over its intervals
+(:func:`interval_totals`, which the segments of a long run log add up) over its distance
+(:func:`totals_per_mile`).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
 from energy import units
 from energy._data import read_params
-from energy.trace import intervals, require_distance
+from energy.trace import intervals, positive_distance
 
 LHV_KJ_PER_G = 43.2  # [kJ/g] lower heating value of gasoline, as in CMEM
 G_PER_MOL_FUEL_C = 13.85  # [g/mol C] gasoline as CH1.85
@@ -312,8 +316,32 @@ def cmem_rates(
     )
 
 
-def per_mile(t: np.ndarray, v: np.ndarray, vehicle: CmemVehicle) -> CmemResult:
-    """Fuel and tailpipe emissions per mile over a speed trace.
+@dataclass(frozen=True)
+class CmemTotals:
+    """Sums over the intervals of a trace, which the segments of a long trace add up (in
+    order) before :func:`totals_per_mile` divides them by the distance."""
+
+    distance_m: float
+    """Distance [m]."""
+    duration_s: float
+    """Duration [s]."""
+    fuel_g: float
+    """Fuel [g]."""
+    co2_g: float
+    """Tailpipe CO2 [g]."""
+    co_g: float
+    """Tailpipe CO [g]."""
+    hc_g: float
+    """Tailpipe HC [g]."""
+    nox_g: float
+    """Tailpipe NOx [g]."""
+
+    def __add__(self, other: CmemTotals) -> CmemTotals:
+        return CmemTotals(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+
+def interval_totals(t: np.ndarray, v: np.ndarray, vehicle: CmemVehicle) -> CmemTotals:
+    """Fuel and tailpipe emissions summed over the intervals of a speed trace.
 
     Each interval between samples is evaluated at its mean speed and its constant
     acceleration, then integrated over its duration.
@@ -324,25 +352,53 @@ def per_mile(t: np.ndarray, v: np.ndarray, vehicle: CmemVehicle) -> CmemResult:
         vehicle: the parameter set.
 
     Raises:
-        TraceError: bad trace (NaN, negative speed, time not increasing) or zero distance.
+        TraceError: bad trace (NaN, negative speed, time not increasing).
     """
     iv = intervals(t, v)
-    miles = units.m_to_mi(require_distance(iv))
     r = cmem_rates(iv.v, iv.a, vehicle)
-
-    def g_per_mi(rate: np.ndarray) -> float:
-        return float(np.sum(rate * iv.dt)) / miles
-
-    return CmemResult(
-        vehicle=vehicle.name,
-        distance_mi=miles,
-        duration_s=iv.duration_s,
-        fuel_g_per_mi=g_per_mi(r.fuel_g_s),
-        co2_g_per_mi=g_per_mi(r.co2_g_s),
-        co_g_per_mi=g_per_mi(r.co_g_s),
-        hc_g_per_mi=g_per_mi(r.hc_g_s),
-        nox_g_per_mi=g_per_mi(r.nox_g_s),
+    return CmemTotals(
+        distance_m=np.sum(iv.v * iv.dt),
+        duration_s=np.sum(iv.dt),
+        fuel_g=np.sum(r.fuel_g_s * iv.dt),
+        co2_g=np.sum(r.co2_g_s * iv.dt),
+        co_g=np.sum(r.co_g_s * iv.dt),
+        hc_g=np.sum(r.hc_g_s * iv.dt),
+        nox_g=np.sum(r.nox_g_s * iv.dt),
     )
+
+
+def totals_per_mile(totals: CmemTotals, vehicle_name: str) -> CmemResult:
+    """The per-mile figures of a trace's :class:`CmemTotals`.
+
+    Raises:
+        TraceError: the trace covers no distance.
+    """
+    miles = units.m_to_mi(positive_distance(float(totals.distance_m)))
+    return CmemResult(
+        vehicle=vehicle_name,
+        distance_mi=miles,
+        duration_s=float(totals.duration_s),
+        fuel_g_per_mi=float(totals.fuel_g) / miles,
+        co2_g_per_mi=float(totals.co2_g) / miles,
+        co_g_per_mi=float(totals.co_g) / miles,
+        hc_g_per_mi=float(totals.hc_g) / miles,
+        nox_g_per_mi=float(totals.nox_g) / miles,
+    )
+
+
+def per_mile(t: np.ndarray, v: np.ndarray, vehicle: CmemVehicle) -> CmemResult:
+    """Fuel and tailpipe emissions per mile over a speed trace (:func:`interval_totals`
+    over the distance).
+
+    Args:
+        t: sample times [s], strictly increasing.
+        v: speeds [m/s], >= 0.
+        vehicle: the parameter set.
+
+    Raises:
+        TraceError: bad trace (NaN, negative speed, time not increasing) or zero distance.
+    """
+    return totals_per_mile(interval_totals(t, v, vehicle), vehicle.name)
 
 
 # --- 2022 Toyota Corolla 1.987 L, 6-speed manual -------------------------------------

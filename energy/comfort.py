@@ -27,6 +27,8 @@ lane, docs/training.md), which a 2-s window test can miss when the brake is rele
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
 
 ISO_DECEL_WINDOW_S = 2.0  # [s] ISO 15622: mean automatic deceleration over any 2 s ...
@@ -43,6 +45,8 @@ PROMPT_TTC_S = 6.0  # [s]
 PROMPT_HEADWAY_S = 1.0  # [s]
 PROMPT_LEAD_DECEL_MPS2 = 2.0  # [m/s^2]
 
+F = TypeVar("F", float, np.ndarray)
+
 __all__ = [
     "ACCEL_DEADBAND_MPS2",
     "ISO_DECEL_LIMIT_MPS2",
@@ -50,9 +54,14 @@ __all__ = [
     "ISO_JERK_LIMIT_MPS3",
     "ISO_JERK_WINDOW_S",
     "decel_window_share",
+    "decel_windows_over",
     "jerk_window_share",
+    "jerk_windows_over",
+    "prompt_window_start",
+    "sign_changes",
     "sign_changes_per_min",
     "unprompted_hard_brakes",
+    "unprompted_onsets",
     "window_starts",
 ]
 
@@ -79,12 +88,32 @@ def decel_window_share(
     Returns:
         The share in [0, 1], or None when the trace is shorter than one window.
     """
-    starts = window_starts(t, window_s)
-    if starts.size == 0:
+    n = window_starts(t, window_s).size
+    if n == 0:
         return None
-    dv = np.concatenate([[0.0], np.cumsum(accel[1:] * np.diff(t))])  # [m/s] ∫a dt from t[0]
+    return decel_windows_over(t, accel, n, 0.0, window_s, limit_mps2)[0] / n
+
+
+def decel_windows_over(
+    t: np.ndarray,
+    accel: np.ndarray,
+    n_starts: int,
+    dv0: float = 0.0,
+    window_s: float = ISO_DECEL_WINDOW_S,
+    limit_mps2: float = ISO_DECEL_LIMIT_MPS2,
+) -> tuple[int, np.ndarray]:
+    """Of the windows that start at the first ``n_starts`` rows, those whose mean
+    deceleration exceeds ``limit_mps2``; ``t`` must reach each window's end (or the
+    trace's end). A segment of a long trace passes the integral so far as ``dv0``.
+
+    Returns:
+        The count, and ``dv`` [m/s]: ``dv0 + ∫a dt`` from ``t[0]`` at each row.
+    """
+    # one sequential sum from dv0, so that segments chained by it give the whole trace's dv
+    dv = np.cumsum(np.concatenate([[dv0], accel[1:] * np.diff(t)]))
+    starts = t[:n_starts]
     mean_a = (np.interp(starts + window_s, t, dv) - np.interp(starts, t, dv)) / window_s
-    return float(np.mean(-mean_a > limit_mps2))
+    return int(np.count_nonzero(-mean_a > limit_mps2)), dv
 
 
 def jerk_window_share(
@@ -104,11 +133,24 @@ def jerk_window_share(
     Returns:
         The share in [0, 1], or None when the trace is shorter than one window.
     """
-    starts = window_starts(t, window_s)
-    if starts.size == 0:
+    n = window_starts(t, window_s).size
+    if n == 0:
         return None
+    return jerk_windows_over(t, accel, n, window_s, limit_mps3) / n
+
+
+def jerk_windows_over(
+    t: np.ndarray,
+    accel: np.ndarray,
+    n_starts: int,
+    window_s: float = ISO_JERK_WINDOW_S,
+    limit_mps3: float = ISO_JERK_LIMIT_MPS3,
+) -> int:
+    """Of the windows that start at the first ``n_starts`` rows, the number whose mean jerk
+    exceeds ``limit_mps3``; ``t`` must reach each window's end (or the trace's end)."""
+    starts = t[:n_starts]
     mean_jerk = np.abs(np.interp(starts + window_s, t, accel) - np.interp(starts, t, accel))
-    return float(np.mean(mean_jerk / window_s > limit_mps3))
+    return int(np.count_nonzero(mean_jerk / window_s > limit_mps3))
 
 
 def sign_changes_per_min(
@@ -127,10 +169,31 @@ def sign_changes_per_min(
     """
     if t.size < 2:
         return None
+    changes = sign_changes(accel, 0, deadband_mps2)[0]
+    return changes / ((t[-1] - t[0]) / 60.0)
+
+
+def sign_changes(
+    accel: np.ndarray, last_sign: int = 0, deadband_mps2: float = ACCEL_DEADBAND_MPS2
+) -> tuple[int, int]:
+    """Sign changes of acceleration (see :func:`sign_changes_per_min`) after a row of sign
+    ``last_sign`` (1, -1; 0 for none).
+
+    Returns:
+        The count, and the last sign outside the band (``last_sign`` if none is).
+    """
     sign = np.where(accel > deadband_mps2, 1, np.where(accel < -deadband_mps2, -1, 0))
     outside = sign[sign != 0]  # the band keeps the last sign: drop its rows
+    if last_sign:
+        outside = np.concatenate([[last_sign], outside])
     changes = int(np.count_nonzero(np.diff(outside)))
-    return changes / ((t[-1] - t[0]) / 60.0)
+    return changes, int(outside[-1]) if outside.size else 0
+
+
+def prompt_window_start(t: F) -> F:
+    """Where the look-back of a hard brake at time ``t`` [s] begins [s] (see
+    :func:`unprompted_hard_brakes`)."""
+    return t - PROMPT_WINDOW_S - WINDOW_SLACK_S
 
 
 def unprompted_hard_brakes(
@@ -160,6 +223,21 @@ def unprompted_hard_brakes(
     """
     if t.size < 2:
         return 0
+    return unprompted_onsets(t, accel, gap, v_host, v_lead, 1, limit_mps2)
+
+
+def unprompted_onsets(
+    t: np.ndarray,
+    accel: np.ndarray,
+    gap: np.ndarray,
+    v_host: np.ndarray,
+    v_lead: np.ndarray,
+    lo: int,
+    limit_mps2: float = ISO_DECEL_LIMIT_MPS2,
+) -> int:
+    """The unprompted onsets (see :func:`unprompted_hard_brakes`) at rows ``lo`` (>= 1) on.
+    The rows before ``lo`` are context: they must reach back past
+    :func:`prompt_window_start` of row ``lo``'s time, or be the trace's first rows."""
     closing = v_host - v_lead
     with np.errstate(divide="ignore", invalid="ignore"):
         ttc_short = (closing > 0.0) & (np.maximum(gap, 0.0) < PROMPT_TTC_S * closing)
@@ -167,7 +245,7 @@ def unprompted_hard_brakes(
     lead_decel = np.concatenate([[0.0], -np.diff(v_lead) / np.diff(t)])
     threat = ttc_short | headway_short | (lead_decel >= PROMPT_LEAD_DECEL_MPS2)
     hard = accel < -limit_mps2
-    onsets = np.flatnonzero(hard[1:] & ~hard[:-1]) + 1
-    first = np.searchsorted(t, t[onsets] - PROMPT_WINDOW_S - WINDOW_SLACK_S)  # each onset's look-back starts here
+    onsets = np.flatnonzero(hard[lo:] & ~hard[lo - 1 : -1]) + lo
+    first = np.searchsorted(t, prompt_window_start(t[onsets]))  # each onset's look-back starts here
     threats = np.concatenate([[0], np.cumsum(threat)])  # threat rows before each row
     return int(np.count_nonzero(threats[onsets + 1] == threats[first]))

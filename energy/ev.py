@@ -15,20 +15,28 @@ The paper (Wei et al. 2019, eq. 6) uses the UCR "Type II" energy rate model
 shipped here (``energy/data/leaf_eq6_fit.csv``) are a least-squares FIT TO VT-CPEM
 over the EPA cycles, made by ``scripts/fit_ev_model.py``. They are not the UCR values.
 Regeneration is counted as negative energy in both models.
+
+Per-mile figures of a trace are sums over its intervals (:func:`vtcpem_totals`,
+:func:`eq6_totals`, which the segments of a long run log add up) over its distance
+(:func:`totals_per_mile`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from energy import units
 from energy._data import read_params
-from energy.trace import intervals, require_distance
+from energy.trace import intervals, positive_distance
 
 EQ6_FIT_FILE = "leaf_eq6_fit.csv"
+VTCPEM = "vt-cpem"
+"""The model name of VT-CPEM's results."""
+EQ6 = "eq6-fit-to-vt-cpem"
+"""The model name of eq. 6's results (coefficients fitted to VT-CPEM)."""
 EQ6_TERMS = ("l0", "l1", "l2", "l3", "l4", "l5", "l6", "l7", "l8")
 """Coefficient names of eq. 6, in order."""
 
@@ -151,22 +159,80 @@ def eq6_power_kw(
     return eq6_design(v, a) @ coef
 
 
-def _result(
-    model: str,
-    t: np.ndarray,
-    v: np.ndarray,
-    power_w_fn: Callable[[np.ndarray, np.ndarray], np.ndarray],
-) -> EvResult:
+@dataclass(frozen=True)
+class EvTotals:
+    """Sums over the intervals of a trace, which the segments of a long trace add up (in
+    order) before :func:`totals_per_mile` divides them by the distance."""
+
+    distance_m: float
+    """Distance [m]."""
+    duration_s: float
+    """Duration [s]."""
+    energy_j: float
+    """Net battery energy [J]."""
+    charge_j: float
+    """Energy of the intervals that charge the battery [J], <= 0."""
+
+    def __add__(self, other: EvTotals) -> EvTotals:
+        return EvTotals(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+
+def _totals(
+    t: np.ndarray, v: np.ndarray, power_w_fn: Callable[[np.ndarray, np.ndarray], np.ndarray]
+) -> EvTotals:
     iv = intervals(t, v)
-    miles = units.m_to_mi(require_distance(iv))
-    p = power_w_fn(iv.v, iv.a)
-    e_j = p * iv.dt
+    e_j = power_w_fn(iv.v, iv.a) * iv.dt
+    return EvTotals(
+        distance_m=np.sum(iv.v * iv.dt),
+        duration_s=np.sum(iv.dt),
+        energy_j=np.sum(e_j),
+        charge_j=np.sum(np.minimum(e_j, 0.0)),
+    )
+
+
+def vtcpem_totals(t: np.ndarray, v: np.ndarray, leaf: LeafVtCpem = LEAF) -> EvTotals:
+    """VT-CPEM battery energy summed over the intervals of a speed trace (each at its mean
+    speed and constant acceleration).
+
+    Args:
+        t: sample times [s], strictly increasing.
+        v: speeds [m/s], >= 0.
+        leaf: model parameters.
+
+    Raises:
+        TraceError: bad trace.
+    """
+    return _totals(t, v, lambda vv, aa: vtcpem_power_w(vv, aa, leaf))
+
+
+def eq6_totals(t: np.ndarray, v: np.ndarray, coefficients: np.ndarray | None = None) -> EvTotals:
+    """Eq. 6 battery energy summed over the intervals of a speed trace.
+
+    Args:
+        t: sample times [s], strictly increasing.
+        v: speeds [m/s], >= 0.
+        coefficients: l0..l8; defaults to the shipped fit to VT-CPEM.
+
+    Raises:
+        TraceError: bad trace.
+    """
+    return _totals(t, v, lambda vv, aa: 1000.0 * eq6_power_kw(vv, aa, coefficients))
+
+
+def totals_per_mile(model: str, totals: EvTotals) -> EvResult:
+    """The per-mile figures of a trace's :class:`EvTotals` (``model``: :data:`VTCPEM` or
+    :data:`EQ6`).
+
+    Raises:
+        TraceError: the trace covers no distance.
+    """
+    miles = units.m_to_mi(positive_distance(float(totals.distance_m)))
     return EvResult(
         model=model,
         distance_mi=miles,
-        duration_s=iv.duration_s,
-        energy_kj_per_mi=float(np.sum(e_j)) / units.J_PER_KJ / miles,
-        regen_kj_per_mi=float(-np.sum(np.minimum(e_j, 0.0))) / units.J_PER_KJ / miles,
+        duration_s=float(totals.duration_s),
+        energy_kj_per_mi=float(totals.energy_j) / units.J_PER_KJ / miles,
+        regen_kj_per_mi=float(-totals.charge_j) / units.J_PER_KJ / miles,
     )
 
 
@@ -181,7 +247,7 @@ def vtcpem_per_mile(t: np.ndarray, v: np.ndarray, leaf: LeafVtCpem = LEAF) -> Ev
     Raises:
         TraceError: bad trace or zero distance.
     """
-    return _result("vt-cpem", t, v, lambda vv, aa: vtcpem_power_w(vv, aa, leaf))
+    return totals_per_mile(VTCPEM, vtcpem_totals(t, v, leaf))
 
 
 def eq6_per_mile(t: np.ndarray, v: np.ndarray, coefficients: np.ndarray | None = None) -> EvResult:
@@ -195,6 +261,4 @@ def eq6_per_mile(t: np.ndarray, v: np.ndarray, coefficients: np.ndarray | None =
     Raises:
         TraceError: bad trace or zero distance.
     """
-    return _result(
-        "eq6-fit-to-vt-cpem", t, v, lambda vv, aa: 1000.0 * eq6_power_kw(vv, aa, coefficients)
-    )
+    return totals_per_mile(EQ6, eq6_totals(t, v, coefficients))

@@ -87,13 +87,12 @@ def intervals(t: np.ndarray, v: np.ndarray) -> Intervals:
     return Intervals(dt=dt, v=0.5 * (v[1:] + v[:-1]), a=np.diff(v) / dt)
 
 
-def require_distance(iv: Intervals) -> float:
-    """Distance of a trace [m], which must be positive for per-mile figures.
+def positive_distance(distance_m: float) -> float:
+    """``distance_m`` [m], which must be positive for per-mile figures.
 
     Raises:
-        TraceError: the trace covers no distance.
+        TraceError: it is not (no distance travelled).
     """
-    d = iv.distance_m
-    if not d > 0.0:
+    if not distance_m > 0.0:
         raise TraceError("zero distance travelled: per-mile figures are undefined")
-    return d
+    return distance_m

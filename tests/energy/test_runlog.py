@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 from energy_log_rows import COLUMNS, make_log_rows
 
-from energy import EnergyError, RunLogError, read_run_log
+from energy import EnergyError, RunLogError, read_run_log, runlog
+from energy.runlog import iter_run_log
 
 
 def test_reads_a_good_log_with_extra_columns(write_log: Callable[..., Path]) -> None:
@@ -26,32 +29,33 @@ def _bad(
     return rows
 
 
-@pytest.mark.parametrize(
-    ("mutate", "match"),
-    [
-        (lambda r: _bad(r, 3, "v_host", "nan"), r"row 3 \(line 4\): column 'v_host' is nan"),
-        (lambda r: _bad(r, 3, "gap", "inf"), r"row 3 \(line 4\): column 'gap' is inf"),
-        (lambda r: _bad(r, 4, "accel", "abc"), r"row 4 \(line 5\): column 'accel' is not a number"),
-        (lambda r: _bad(r, 2, "force", ""), r"row 2 \(line 3\): column 'force' is empty"),
-        (
-            lambda r: _bad(r, 5, "v_host", -0.1),
-            r"row 5 \(line 6\): negative speed in column 'v_host'",
-        ),
-        (
-            lambda r: _bad(r, 5, "v_lead", -3),
-            r"row 5 \(line 6\): negative speed in column 'v_lead'",
-        ),
-        (lambda r: _bad(r, 6, "t", 0.1), r"row 6 \(line 7\): time not strictly increasing"),
-        (lambda r: _bad(r, 3, "t", r[1]["t"]), r"row 3 \(line 4\): time not strictly increasing"),
-        (lambda r: _bad(r, 2, "force", 1.5), r"row 2 \(line 3\): force 1.5 outside \[-1, 1\]"),
-        (lambda r: _bad(r, 2, "collision", 2), r"row 2 \(line 3\): collision must be 0 or 1"),
-        (lambda r: _bad(r, 2, "frame", 1.5), r"row 2 \(line 3\): frame must be an integer"),
-        (
-            lambda r: _bad(r, 7, "gap", -1.0),
-            r"row 7 \(line 8\): negative gap -1.0 m without a collision",
-        ),
-    ],
-)
+# (a mutation of make_log_rows, the message it must raise)
+BAD_ROWS = [
+    (lambda r: _bad(r, 3, "v_host", "nan"), r"row 3 \(line 4\): column 'v_host' is nan"),
+    (lambda r: _bad(r, 3, "gap", "inf"), r"row 3 \(line 4\): column 'gap' is inf"),
+    (lambda r: _bad(r, 4, "accel", "abc"), r"row 4 \(line 5\): column 'accel' is not a number"),
+    (lambda r: _bad(r, 2, "force", ""), r"row 2 \(line 3\): column 'force' is empty"),
+    (
+        lambda r: _bad(r, 5, "v_host", -0.1),
+        r"row 5 \(line 6\): negative speed in column 'v_host'",
+    ),
+    (
+        lambda r: _bad(r, 5, "v_lead", -3),
+        r"row 5 \(line 6\): negative speed in column 'v_lead'",
+    ),
+    (lambda r: _bad(r, 6, "t", 0.1), r"row 6 \(line 7\): time not strictly increasing"),
+    (lambda r: _bad(r, 3, "t", r[1]["t"]), r"row 3 \(line 4\): time not strictly increasing"),
+    (lambda r: _bad(r, 2, "force", 1.5), r"row 2 \(line 3\): force 1.5 outside \[-1, 1\]"),
+    (lambda r: _bad(r, 2, "collision", 2), r"row 2 \(line 3\): collision must be 0 or 1"),
+    (lambda r: _bad(r, 2, "frame", 1.5), r"row 2 \(line 3\): frame must be an integer"),
+    (
+        lambda r: _bad(r, 7, "gap", -1.0),
+        r"row 7 \(line 8\): negative gap -1.0 m without a collision",
+    ),
+]
+
+
+@pytest.mark.parametrize(("mutate", "match"), BAD_ROWS)
 def test_bad_value_names_file_row_and_problem(
     write_log: Callable[..., Path],
     mutate: Callable[[list[dict[str, object]]], list[dict[str, object]]],
@@ -147,3 +151,65 @@ def test_a_long_log_is_read_in_bounded_memory(tmp_path: Path) -> None:
         tracemalloc.stop()
     assert log.t.size == n
     assert peak < 100 * n, peak  # [bytes] 8 float64 columns = 64 a row; the rows as text held ~1 kB a row
+
+
+@pytest.mark.parametrize(("mutate", "match"), BAD_ROWS[:2] + BAD_ROWS[5:8] + BAD_ROWS[-1:])
+@pytest.mark.parametrize("rows", [1, 2, 5])
+def test_chunked_reading_names_the_same_row(
+    write_log: Callable[..., Path], monkeypatch: pytest.MonkeyPatch, rows: int,
+    mutate: Callable[[list[dict[str, object]]], list[dict[str, object]]], match: str,
+) -> None:
+    """Chunks of 1, 2 or 5 rows: the row before a chunk's first is still checked against."""
+    monkeypatch.setattr(runlog, "SEGMENT_ROWS", rows)
+    with pytest.raises(RunLogError, match=r"bad_run\.csv, " + match):
+        read_run_log(write_log(mutate(make_log_rows()), name="bad_run.csv"))
+
+
+@pytest.mark.parametrize(("mutate", "match"), BAD_ROWS)
+def test_the_row_by_row_reading_names_the_same_row(
+    write_log: Callable[..., Path], monkeypatch: pytest.MonkeyPatch,
+    mutate: Callable[[list[dict[str, object]]], list[dict[str, object]]], match: str,
+) -> None:
+    """A row the fast path does not take is read field by field: the same messages."""
+    monkeypatch.setattr(runlog, "_FAST_ROW", re.compile(r"(?!)"))
+    with pytest.raises(RunLogError, match=r"bad_run\.csv, " + match):
+        read_run_log(write_log(mutate(make_log_rows()), name="bad_run.csv"))
+
+
+def test_a_bad_value_before_an_unreadable_row_is_named_first(tmp_path: Path) -> None:
+    """The fast path checks a chunk's values after reading it: an earlier row still comes first."""
+    path = tmp_path / "two.csv"
+    rows = [f"{i * 0.1:.1f},{i},20,20,50,0,0,0" for i in range(6)]
+    rows[2] = "0.2,2,20,20,50,0,3.0,0"  # force 3: row 3
+    rows[4] = "0.4,4,20,20,abc,0,0,0"  # not a number: row 5
+    path.write_text(",".join(COLUMNS) + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RunLogError, match=r"row 3 \(line 4\): force 3.0 outside"):
+        read_run_log(path)
+
+
+def test_iter_run_log_gives_the_log_in_chunks(write_log: Callable[..., Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    rows = make_log_rows(n=23)
+    rows[5].update(gap=-0.5, collision=1)
+    path = write_log(rows)
+    whole = read_run_log(path)
+    chunks = list(iter_run_log(path, rows=5))
+    assert [c.t.size for c in chunks] == [5, 5, 5, 5, 3]
+    monkeypatch.setattr(runlog, "SEGMENT_ROWS", 5)
+    joined = read_run_log(path)  # read in chunks too
+    for c in COLUMNS:
+        assert np.array_equal(np.concatenate([getattr(k, c) for k in chunks]), getattr(whole, c)), c
+        assert np.array_equal(getattr(joined, c), getattr(whole, c)), c
+
+
+def test_the_whole_file_checks_come_after_the_last_chunk(write_log: Callable[..., Path]) -> None:
+    seen = []
+    with pytest.raises(RunLogError, match="zero distance travelled"):
+        for chunk in iter_run_log(write_log(make_log_rows(n=12, v=0.0)), rows=5):
+            seen.append(chunk.t.size)
+    assert seen == [5, 5, 2]
+
+
+def test_one_moving_interval_across_a_chunk_edge_is_a_distance(write_log: Callable[..., Path]) -> None:
+    rows = make_log_rows(n=6, v=0.0)
+    rows[5]["v_host"] = 1.0  # only the interval 4-5 moves; row 5 is the second chunk
+    assert [c.t.size for c in iter_run_log(write_log(rows), rows=5)] == [5, 1]
