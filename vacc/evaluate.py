@@ -269,7 +269,7 @@ def paper_suite(
     out: Path, scenario: str, methods: str | None, models: Path, seeds: list[int], *, human_files: tuple[str, ...] = (),
     vehicle: str | None = None, duration: float | None = None, jobs: int = 1, settle: float = SETTLE_S,
     cold_start: bool = False, road: Road = DEFAULT_ROAD, extra: dict[str, str] | None = None, include_early: bool = False,
-    view: bool = False, videos: bool = False,
+    view: bool = False, videos: bool = False, figures: bool = True,
 ) -> dict[str, Any]:  # fmt: skip
     """Every method on test-1..test-4: drive, write table.md/.csv (and stats.csv), the figures and report.html.
 
@@ -282,6 +282,7 @@ def paper_suite(
         include_early: keep the runs that ended before their duration in the tables' values.
         view: watch each run in a window, one at a time.
         videos: write one video per run into ``out/videos`` (linked from the report).
+        figures: draw the figures (False: tables, logs and the report only).
 
     Returns:
         The combined metrics per method (see :func:`vacc.tables.build_tables`).
@@ -298,7 +299,7 @@ def paper_suite(
     veh = vehicle or DEFAULT_VEHICLE[scenario]
     runs = score_runs(out, chosen, veh, settle, named, duration, ends=True)
     result = build_tables(out, scenario, chosen, labels, veh, settle, named, runs, road, include_early)
-    written = _paper_figures(out, runs, labels, scenario, chosen, veh, settle, named, models, duration)
+    written = _paper_figures(out, runs, labels, scenario, chosen, veh, settle, named, models, duration) if figures else []
     made = make_videos(work, out, jobs) if videos else {}
     title = (out / "table.md").read_text().splitlines()[0].lstrip("# ")
     write_report(out, title=title, figures=[w.name for w in written], runs=runs, jobs=work, labels=labels, scenario=scenario, videos=made)
@@ -307,7 +308,8 @@ def paper_suite(
         if w.empty:
             click.echo(f"{w.name}: nothing to plot: {w.empty}")
     tables = "table.md, table.csv" + (", stats.csv" if multi else "")
-    click.echo(f"\nWrote {out}/{tables}, {', '.join(w.name for w in written)} (.png and .pdf each), report.html"
+    drawn = f"{', '.join(w.name for w in written)} (.png and .pdf each), " if written else ""
+    click.echo(f"\nWrote {out}/{tables}, {drawn}report.html"
                + (", videos/" if made else "") + " and logs/")  # fmt: skip
     return result
 
@@ -415,11 +417,12 @@ def _paper_only(suite: str, given: dict[str, Any]) -> None:
 @click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
 @click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
 @click.option("--videos", is_flag=True, help="Write one video per run into OUT/videos (vacc video), linked from report.html (--suite paper).")
+@click.option("--no-figures", is_flag=True, help="Tables, logs and report.html without the figures (--suite paper): the figures take most of a short evaluation's time.")
 def evaluate(
     scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None,
     duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool,
     lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str, model_files: tuple[str, ...] = (),
-    include_early: bool = False, view: bool = False, videos: bool = False,
+    include_early: bool = False, view: bool = False, videos: bool = False, no_figures: bool = False,
 ) -> dict[str, Any] | None:  # fmt: skip
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table; with
@@ -437,7 +440,7 @@ def evaluate(
     if suite == "paper" and road.sun_elevation != SUN_ELEVATION:
         raise click.BadParameter("test-1..test-4 keep a fixed sun; the lead scenarios draw theirs: add --suite safety", param_hint="--sun-elevation")
     leads = _lead_scenarios(lead_scenarios, suite)
-    _paper_only(suite, {"--model": model_files, "--include-early": include_early, "--view": view, "--videos": videos})
+    _paper_only(suite, {"--model": model_files, "--include-early": include_early, "--view": view, "--videos": videos, "--no-figures": no_figures})
     extra = parse_models(model_files, scenario)
     out_dir, models_path = Path(out), Path(models)
     if suite == "safety":
@@ -452,4 +455,4 @@ def evaluate(
         return None
     return paper_suite(out_dir, scenario, methods, models_path, seed_list, human_files=human_files, vehicle=vehicle, duration=duration,
                        jobs=jobs, settle=settle, cold_start=cold_start, road=road, extra=extra, include_early=include_early,
-                       view=view, videos=videos)  # fmt: skip
+                       view=view, videos=videos, figures=not no_figures)  # fmt: skip

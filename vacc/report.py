@@ -101,7 +101,7 @@ def _figures(out: Path, names: Sequence[str]) -> str:
         if png.is_file():
             data = base64.b64encode(png.read_bytes()).decode("ascii")
             parts.append(f'<figure id="{name}"><img alt="{name}" src="data:image/png;base64,{data}"><figcaption>{name}.png (and {name}.pdf)</figcaption></figure>')
-    return "\n".join(parts)
+    return "\n".join(parts) or "<p>None drawn (vacc evaluate --no-figures).</p>"
 
 
 def write_report(

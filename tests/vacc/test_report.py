@@ -135,3 +135,5 @@ def test_model_of_the_other_scenario_is_refused_in_one_line(tmp_path):
     assert result.returncode == 2 and result.stderr.strip().splitlines()[-1].startswith("Error: Invalid value for --model: models/ev-eco.pt")
     result = vacc("evaluate", "--out", str(tmp_path), "--suite", "safety", "--videos")
     assert result.returncode == 2 and "--videos works with --suite paper only" in result.stderr
+    result = vacc("evaluate", "--out", str(tmp_path), "--suite", "random", "--no-figures")
+    assert result.returncode == 2 and "--no-figures works with --suite paper only" in result.stderr

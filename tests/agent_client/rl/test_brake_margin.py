@@ -44,10 +44,14 @@ def test_the_margin_loss_is_zero_once_the_brake_leads_by_the_margin_and_counts_o
     assert brake_margin_loss(q, torch.zeros(3, dtype=torch.bool)).item() == 0.0
 
 
+UPDATES = 40
+
+
 def _trained_q(tmp_path, weight: float) -> torch.Tensor:
-    """Q-values, after 200 updates with ``brake_margin=weight``, of a fast approach's frame
+    """Q-values, after UPDATES updates with ``brake_margin=weight``, of a fast approach's frame
     (brightness 200) and a slow one's (40); reward 0 everywhere, so only the margin ranks."""
-    cfg = Config(reward="gap", brake_margin=weight, total_steps=10, batch_size=32, learning_rate=1e-3, torch_threads=1, gamma=0.0, n_step=1)
+    cfg = Config(reward="gap", brake_margin=weight, total_steps=10, batch_size=16, learning_rate=1e-3, torch_threads=1, gamma=0.0, n_step=1,
+                 conv_channels=(4, 8, 8), hidden=32)  # a narrow net: the loss, not the width, is under test
     torch.manual_seed(0)
     learner = Learner(cfg, tmp_path / str(weight), trainer="single")
     memory, stacker = ReplayMemory(512, 8, 1, gaps=True), FrameStacker(8, 1)
@@ -63,8 +67,8 @@ def _trained_q(tmp_path, weight: float) -> torch.Tensor:
             gap -= closing * 0.1
             memory.add(10, 0.0, False, True, obs_at(level), gap)
     rng = np.random.default_rng(0)
-    for _ in range(200):
-        learner.update(memory.sample(32, rng, 1, 0.0))
+    for _ in range(UPDATES):
+        learner.update(memory.sample(16, rng, 1, 0.0))
     with torch.no_grad():
         q = learner.q(torch.from_numpy(np.stack([obs_at(200)["frames"], obs_at(40)["frames"]])), torch.full((2, 8), 20.0))
     learner.close()
