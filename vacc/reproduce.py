@@ -12,7 +12,7 @@ Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
 (N minus the recipe's seed): the recipe's own seed gives its written seeds, and every
 other N a distinct, equally written-out set.
 
-``--smoke`` runs every stage for a few hundred steps (:func:`smoke_config`) and the gates
+``--smoke`` runs every stage for a few dozen steps (:func:`smoke_config`) and the gates
 in their quick mode: it checks that a recipe still runs, not what it makes.
 """
 
@@ -46,9 +46,9 @@ __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_see
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
 
-SMOKE = {"total_steps": 60, "learning_starts": 30, "exploration_steps": 40, "episode_seconds": 3.0, "eval_seconds": 1.0,
-         "eval_every": 0, "checkpoint_every": 30, "buffer_size": 2_000, "target_sync_every": 50, "teacher_steps": 60,
-         "batch_size": 8, "bc_steps": 20}  # fmt: skip
+SMOKE = {"total_steps": 40, "learning_starts": 20, "exploration_steps": 25, "episode_seconds": 3.0, "eval_seconds": 0.5,
+         "eval_every": 0, "checkpoint_every": 20, "buffer_size": 2_000, "target_sync_every": 30, "teacher_steps": 40,
+         "batch_size": 8, "bc_steps": 10}  # fmt: skip
 """What --smoke sets in every train stage (each value at most the recipe's), and one evaluation trajectory."""
 
 
@@ -65,7 +65,7 @@ def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
 
 
 def smoke_config(cfg: Config) -> Config:
-    """``cfg`` cut to a few hundred steps (:data:`SMOKE`), evaluated on its first trajectory."""
+    """``cfg`` cut to a few dozen steps (:data:`SMOKE`), evaluated on its first trajectory."""
     small = {k: (min(getattr(cfg, k), v) if getattr(cfg, k) is not None else v) for k, v in SMOKE.items()}
     return dataclasses.replace(cfg, **small, eval_trajectories=cfg.eval_trajectories[:1])
 
@@ -217,7 +217,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
 @click.option("--seed", default=None, type=click.IntRange(min=0), help=f"Replicate N: every train stage's seed + {SEED_STRIDE:,} x (N - the recipe's seed). Default: the recipe's seed.")
 @click.option("--servers", default=1, show_default=True, type=click.IntRange(min=1), help="Servers feeding each train stage that the K-stream trainer can run (others run one).")
 @click.option("--ray", "use_ray", is_flag=True, help="Run the train stages' servers and actors as Ray actors (vacc[ray]).")
-@click.option("--smoke", is_flag=True, help="Every stage for a few hundred steps, the gates in quick mode: checks the recipe runs.")
+@click.option("--smoke", is_flag=True, help="Every stage for a few dozen steps, the gates in quick mode: checks the recipe runs.")
 @click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
 def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, quiet: bool) -> None:
