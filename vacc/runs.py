@@ -105,15 +105,15 @@ def _controller(job: Job) -> Any:
 
 def run_job(job: Job) -> Job:
     """Drive one job through its own server process; returns it when its log is written."""
-    # imported here: the parent process that only scores and plots never loads torch
-    import torch
-
     from agent_client.controllers import camera
     from agent_client.drive import drive_episode
     from agent_client.launcher import local_server
     from agent_client.session import Session
 
-    torch.set_num_threads(1)  # one run per core
+    if job.checkpoint is not None:  # a policy: torch (2 CPU-s to import), which a law's run never loads
+        import torch
+
+        torch.set_num_threads(1)  # one run per core
     controller = _controller(job)
     image, size = camera(controller)
     view = None
