@@ -97,6 +97,10 @@ def _is_integration(item: pytest.Item) -> bool:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         item.add_marker(pytest.mark.integration if _is_integration(item) else pytest.mark.unit)
+    # The modules that start processes or hold slow tests run first, the quick in-process ones
+    # last: the workers then finish together instead of one running a long test alone at the end.
+    heavy = {item.module for item in items if item.get_closest_marker("integration") or item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.module not in heavy)
 
 
 @pytest.fixture(autouse=True)
