@@ -155,7 +155,7 @@ class SimServer:
                 break
             self._waiting = True
             try:
-                got = self.endpoint.receive(0.5)
+                got = self.endpoint.receive(0.5 if deadline is None else min(0.5, deadline - now))
             except _Stopped:
                 break
             finally:

@@ -332,3 +332,19 @@ def test_a_version_3_client_resets_without_a_preroll_field(h):
     assert h.hello(version=3)["version"] == 3
     obs = h.reset()
     assert obs["type"] == "obs" and obs["frame"] == 0
+
+
+def test_max_seconds_never_waits_past_its_deadline(monkeypatch):
+    """serve(max_seconds) waits for a datagram at most until its deadline, not a whole
+    receive timeout past it."""
+    waits: list[float] = []
+    with SimServer(ServerConfig(port=0)) as server:
+        real = server.endpoint.receive
+
+        def receive(timeout: float | None) -> Received | None:
+            waits.append(timeout if timeout is not None else math.inf)
+            return real(timeout)
+
+        monkeypatch.setattr(server.endpoint, "receive", receive)
+        server.serve(max_seconds=0.05)
+    assert waits and max(waits) <= 0.05
