@@ -2,15 +2,15 @@
 
 The lowest layer of the evaluation: :mod:`vacc.evaluate` (the command), its suites
 (:mod:`vacc.safety`, :mod:`vacc.random_suite`), :mod:`vacc.tables` and :mod:`vacc.figures`
-import it, and it imports none of them. Each run is a real simulator process and a client
-over UDP. The lead vehicle is driven as a follower's run and then written as its own:
+import it, and it imports none of them. Each run is a client over UDP to a real simulator
+process, which the worker that drives it keeps for its next run. The lead vehicle is driven as a follower's run and then written as its own:
 its logs carry the lead's speed as ``v_host`` and a 55 m placeholder gap.
 """
 
 from __future__ import annotations
 
 import csv
-import subprocess
+import multiprocessing.util
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 
 import click
 
-from agent_client.launcher import DEFAULT_ROAD, Road
+from agent_client.launcher import DEFAULT_ROAD, KeptServers, Road
 from agent_client.progress import progress_bar
 from agent_client.rl.stop import STOP, handlers_active, worker_signals
 from energy import SETTLE_S, RunLog, RunLogError, evaluate_run, read_run_log
@@ -103,11 +103,14 @@ def _controller(job: Job) -> Any:
     return make_controller("ddqn" if job.method.startswith("ddqn") or job.checkpoint else job.method, checkpoint=job.checkpoint)
 
 
+_KEPT = KeptServers()  # this process's servers, one per road: the runs it drives reuse them
+
+
 def run_job(job: Job) -> Job:
-    """Drive one job through its own server process; returns it when its log is written."""
+    """Drive one job through this process's server for its road (started on first use, kept
+    for the next job); returns the job when its log is written."""
     from agent_client.controllers import camera
     from agent_client.drive import drive_episode
-    from agent_client.launcher import local_server
     from agent_client.session import Session
 
     if job.checkpoint is not None:  # a policy: torch (2 CPU-s to import), which a law's run never loads
@@ -126,10 +129,14 @@ def run_job(job: Job) -> Job:
     log = Path(job.log)
     if job.method == "lead":
         log = log.with_name(log.name + ".tmp")
+    road = job.road.server_args()
     try:
-        with local_server(*job.road.server_args(), stderr=subprocess.DEVNULL) as addr, Session(addr, image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
+        with Session(_KEPT.address(*road), image_format=image, image_size=size, client_name=f"vacc-evaluate/{job.method}") as s:
             drive_episode(s, controller, scenario=job.scenario, seed=job.seed, trajectory=job.trajectory, duration=job.duration, log=log,
                           preroll=0 if job.cold_start else None, on_step=view)  # fmt: skip
+    except BaseException:
+        _KEPT.discard(*road)  # its session may still be open: the next job gets a fresh server
+        raise
     finally:
         if view is not None:
             view.close()
@@ -140,24 +147,26 @@ def run_job(job: Job) -> Job:
 
 
 def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
-    """Drive every job, ``jobs`` at a time (each in its own process with its own server);
-    jobs with a view one after another in this process.
+    """Drive every job, ``jobs`` at a time (in worker processes, each with its own kept
+    server); jobs with a view one after another in this process.
 
     Raises:
         click.ClickException: a run failed; the others are cancelled.
     """
     if any(j.view for j in work):  # one window at a time, in this process
         with progress_bar(len(work), label, unit="run") as bar:
-            for j in work:
-                try:
-                    run_job(j)
-                except Exception as exc:
-                    raise click.ClickException(f"a run failed: {exc}") from None
-                bar.update(1)
+            try:
+                for j in work:
+                    try:
+                        run_job(j)
+                    except Exception as exc:
+                        raise click.ClickException(f"a run failed: {exc}") from None
+                    bar.update(1)
+            finally:
+                _KEPT.close()
         return
     stoppable = handlers_active()  # inside vacc reproduce: a first signal stops after the runs in flight
-    init = worker_signals if stoppable else None
-    with ProcessPoolExecutor(max_workers=min(jobs, len(work)), initializer=init) as pool, progress_bar(len(work), label, unit="run") as bar:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(work)), initializer=_worker_init, initargs=(stoppable,)) as pool, progress_bar(len(work), label, unit="run") as bar:
         futures = [pool.submit(run_job, j) for j in work]
         try:
             for fut in as_completed(futures):
@@ -173,6 +182,16 @@ def drive_jobs(work: list[Job], jobs: int, label: str) -> None:
             for f in futures:
                 f.cancel()
             raise click.ClickException(f"a run failed: {exc}") from None
+
+
+def _worker_init(stoppable: bool) -> None:
+    """A pool worker: reap its kept servers when it exits (multiprocessing runs the finalizer
+    at a worker's normal exit; a killed worker's servers see their parent gone and exit)."""
+    global _KEPT
+    _KEPT = KeptServers()  # a forked worker's own: never the servers of the process it came from
+    multiprocessing.util.Finalize(None, _KEPT.close, exitpriority=10)
+    if stoppable:
+        worker_signals()
 
 
 def _lead_log(follower: Path, out: Path) -> None:
