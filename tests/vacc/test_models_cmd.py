@@ -109,12 +109,14 @@ def _report(tmp_path: Path, sha: str, *, quick: bool = False, failing: int = 1) 
 def test_a_gates_verdict_is_recorded_on_the_model_it_checked_and_kept_while_the_file_is_the_same(tmp_path):
     folder = _copy(tmp_path)
     report = _report(tmp_path, _sha256(folder / "ice-gap.pt"))
+    before = CliRunner().invoke(main, ["models", "--models", str(folder)]).output
     done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(report)])
     assert done.exit_code == 0, done.output
     assert "ice-gap: FAIL 4/5 gate checks recorded" in done.output
     row = next(line for line in done.output.splitlines() if line.startswith("ice-gap "))
     assert "FAIL 4/5" in row
-    assert "not run" in next(line for line in done.output.splitlines() if line.startswith("ice-force "))
+    other = [next(line for line in text.splitlines() if line.startswith("ice-force ")) for text in (before, done.output)]
+    assert other[0] == other[1], "recording ice-gap's verdict changed another model's row"
     verdict = {m["name"]: m["verdict"] for m in read_index(folder)["models"]}["ice-gap"]
     assert verdict["failed"] == ["safety: distant-stop seed 3"] and verdict["recipe_digest"] == "d" * 64
     assert write_index(folder) == [] and {m["name"]: m["verdict"] for m in read_index(folder)["models"]}["ice-gap"] == verdict
