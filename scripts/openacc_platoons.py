@@ -3,7 +3,7 @@
     .venv/bin/python scripts/openacc_platoons.py                # amplification table
     .venv/bin/python scripts/openacc_platoons.py --calibrate    # and the per-follower fit (minutes)
     .venv/bin/python scripts/openacc_platoons.py --figures DIR  # and each file's two figures
-    .venv/bin/python scripts/openacc_platoons.py --files long_setting_dynamic_part19.csv --calibrate
+    .venv/bin/python scripts/openacc_platoons.py --files long_setting_dynamic_part19.csv --calibrate --followers 3  # one file, its first three followers
 
 For each of the nine files: the real platoon's lead-to-last RMS speed-deviation ratio over
 the whole run and after the first fifth (energy.string_stability), the lead's own RMS
@@ -38,7 +38,10 @@ def main() -> None:
     ap.add_argument("--calibrate", action="store_true", help="fit the ACC to every real follower")
     ap.add_argument("--figures", type=Path, help="write each real platoon's two figures here")
     ap.add_argument("--files", nargs="+", choices=OPENACC_FILES, default=OPENACC_FILES, help="only these files")
+    ap.add_argument("--followers", type=int, default=None, metavar="N", help="(--calibrate) fit only the first N followers of each file")
     args = ap.parse_args()
+    if args.followers is not None and args.followers < 1:
+        ap.error(f"--followers {args.followers}: give at least 1")
     print("file,cars,real_ratio_whole,real_ratio_after_fifth,lead_dev_rms_mps,last_dev_rms_mps,acc_sim_ratio,acc_sim_last_dev_rms_mps")
     for name in args.files:
         run = read_openacc(name)
@@ -56,7 +59,7 @@ def main() -> None:
         print("file,follower,vehicle,beta_per_s2,gamma_per_s,t_gap_s,rmse_m,samples")
         for name in args.files:
             run = read_openacc(name)
-            for i in range(1, run.n_cars):
+            for i in range(1, run.n_cars if args.followers is None else min(run.n_cars, args.followers + 1)):
                 f = fit_follower(run, i)
                 print(f"{name},{i},{f.vehicle},{f.beta:.4f},{f.gamma:.4f},{f.t_gap:.3f},{f.rmse_m:.3f},{f.samples}", flush=True)
 
