@@ -49,9 +49,11 @@ def _module_spawners(path: str) -> frozenset[str]:
         return frozenset()
     spawners = set(_imported_spawners(tree))
     calls: dict[str, set[str]] = {}
+    lines = source.splitlines()
     for node in ast.walk(tree):
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
-            if PROCESS_WORDS.search(ast.get_source_segment(source, node) or ""):
+            # the function's whole lines (ast.get_source_segment re-reads the source per call)
+            if PROCESS_WORDS.search("\n".join(lines[node.lineno - 1 : node.end_lineno])):
                 spawners.add(node.name)
             calls.setdefault(node.name, set()).update(n.id for n in ast.walk(node) if isinstance(n, ast.Name))
     changed = True
@@ -64,12 +66,26 @@ def _module_spawners(path: str) -> frozenset[str]:
     return frozenset(spawners)
 
 
+@functools.cache
+def _helper_modules() -> dict[str, list[Path]]:
+    """The Python files under tests/ by module name (a test imports a helper by its stem)."""
+    found: dict[str, list[Path]] = {}
+    for path in TESTS.rglob("*.py"):
+        found.setdefault(path.stem, []).append(path)
+    return found
+
+
+@functools.cache
+def _ours(filename: str) -> bool:
+    return TESTS in Path(filename).parents
+
+
 def _imported_spawners(tree: ast.Module) -> set[str]:
     """The names a module imports from helper modules under tests/ that start processes."""
     found: set[str] = set()
     for node in tree.body:
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            for helper in TESTS.rglob(f"{node.module}.py"):
+            for helper in _helper_modules().get(node.module, ()):
                 found.update(alias.asname or alias.name for alias in node.names if alias.name in _module_spawners(str(helper)))
     return found
 
@@ -77,13 +93,13 @@ def _imported_spawners(tree: ast.Module) -> set[str]:
 def _starts_processes(func: object) -> bool:
     """Whether a test or fixture of ours starts processes (pytest's own fixtures never do)."""
     code = getattr(func, "__code__", None)
-    if code is None or func is _unit_tests_stay_in_process.__wrapped__ or TESTS not in Path(code.co_filename).parents:  # type: ignore[attr-defined]
+    if code is None or func is _unit_tests_stay_in_process.__wrapped__ or not _ours(code.co_filename):  # type: ignore[attr-defined]
         return False
     return func.__name__ in _module_spawners(code.co_filename)  # type: ignore[attr-defined]
 
 
 def _is_integration(item: pytest.Item) -> bool:
-    if item.get_closest_marker("integration") or TESTS / "integration" in Path(item.path).parents:
+    if item.get_closest_marker("integration") or _ours(str(item.path)) and Path(item.path).parts[len(TESTS.parts)] == "integration":
         return True
     if not isinstance(item, pytest.Function):
         return False
