@@ -19,6 +19,7 @@ detection matters.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,6 +126,7 @@ class World:
         self.config = config or WorldConfig()
         self.salt = salt & SALT_MASK
         self.state: WorldState | None = None
+        self.host_speeds: list[float] = []  # [m/s] the host's at each physics step of the last step()
 
     def reset(
         self,
@@ -291,8 +293,12 @@ class World:
                 body.position = (hx + offset, body.position.y)
                 self.space.reindex_shapes_for_body(body)
 
-    def step(self, u: float) -> WorldState:
+    def step(self, u: float, lead_speeds: Sequence[float] | None = None) -> WorldState:
         """Apply force ``u`` for one control period.
+
+        ``lead_speeds`` (a platoon, :mod:`sim_server.platoon`): the lead's speed [m/s] at each
+        physics step of the period, in place of its profile's; fewer than the period's steps
+        hold the last one. :attr:`host_speeds` then holds the host's, for the car behind.
 
         Raises:
             ValueError: if ``u`` is not a finite number in [-1, 1].
@@ -302,6 +308,7 @@ class World:
         if state is None or state.terminated or state.truncated:
             raise RuntimeError("step on an episode that is over or not started")
         a_cmd = accel_of_force(u)
+        self.host_speeds = []  # none in a pre-roll step: the car behind coasts too
         if self.preroll_left:
             return self._preroll_step()
         cfg = self.config
@@ -309,12 +316,16 @@ class World:
         v0_host, v0_lead = state.v_host, state.v_lead
         host, lead = self.host, self.lead
         profile = self.v_lead_profile
+        if lead_speeds is not None and len(lead_speeds):
+            ahead = [*lead_speeds, *[lead_speeds[-1]] * cfg.substeps][: cfg.substeps]
+            profile[self.step_index + 1 : self.step_index + 1 + cfg.substeps] = ahead[: len(profile) - self.step_index - 1]
         steps = 0
         for _ in range(cfg.substeps):
             self.step_index += 1
             steps += 1
             v = advance_speed(host.velocity.x, a_cmd, dt, self.set_speed)
             host.velocity = (v, 0.0)
+            self.host_speeds.append(v)
             lead.velocity = (float(profile[self.step_index]), 0.0)
             self.space.step(dt)
             self.odometer += v * dt
