@@ -348,20 +348,39 @@ def random_suite(
     click.echo(f"Wrote {out}/summary.json, random.md and logs/")
 
 
-def openacc_suite(out: Path, methods: str | None) -> None:
-    """Platoons of the laws behind the nine OpenACC leads, beside the real platoons
-    (:mod:`vacc.openacc_suite`): write openacc.md and openacc.json and print the table.
+def openacc_suite(out: Path, methods: str | None, model_files: tuple[str, ...] = ()) -> None:
+    """Platoons of the laws (and of each --model, from its camera) behind the nine OpenACC
+    leads, beside the real platoons (:mod:`vacc.openacc_suite`): write openacc.md and
+    openacc.json and print the table.
 
     Raises:
-        click.BadParameter: --methods names a platoon kind that does not exist.
+        click.BadParameter: --methods names a platoon kind that does not exist, or a bad --model.
     """
     from vacc.openacc_suite import PLATOONS, run_openacc
 
     kinds = list(PLATOONS) if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
-    if not kinds or any(k not in PLATOONS for k in kinds):
+    if (not kinds and not model_files) or any(k not in PLATOONS for k in kinds):
         raise click.BadParameter(f"the openacc suite drives platoons of {', '.join(PLATOONS)}, got {methods!r}", param_hint="--methods")
-    click.echo(run_openacc(out, platoons=kinds), nl=False)
+    models: dict[str, str] = {}
+    for item in model_files:  # each model drives its own vehicle: its checkpoint's scenario
+        path = item.partition("=")[2]
+        scenario = _trained_scenario(path) if Path(path).is_file() else "ice"
+        models.update(parse_models((item,), scenario))
+    if models.keys() & set(kinds):
+        raise click.BadParameter(f"--model names {sorted(models.keys() & set(kinds))}, which are platoon kinds", param_hint="--model")
+    click.echo(run_openacc(out, platoons=kinds, models=models), nl=False)
     click.echo(f"Wrote {out}/openacc.md and openacc.json")
+
+
+def _trained_scenario(path: str) -> str:
+    """The scenario a checkpoint was trained for ("ice" for an unreadable one: parse_models says why)."""
+    from agent_client.errors import InputFileError
+    from agent_client.rl.checkpoint import read_checkpoint
+
+    try:
+        return str(read_checkpoint(path)["config"].get("scenario", "ice"))
+    except InputFileError:
+        return "ice"
 
 
 def _not_for_openacc(ctx: click.Context) -> None:
@@ -371,8 +390,8 @@ def _not_for_openacc(ctx: click.Context) -> None:
         click.BadParameter: one line naming the option.
     """
     for param in ctx.command.params:
-        if param.name not in ("out", "methods", "suite") and ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE:  # type: ignore[arg-type]
-            raise click.BadParameter("the openacc suite drives the nine OpenACC leads in the kinematic platoon; it takes --out and --methods only",
+        if param.name not in ("out", "methods", "suite", "model_files") and ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE:  # type: ignore[arg-type]
+            raise click.BadParameter("the openacc suite drives the nine OpenACC leads; it takes --out, --methods and --model only",
                                      param_hint=param.opts[0] if param.opts else param.name)  # fmt: skip
 
 
@@ -413,7 +432,7 @@ def _paper_only(suite: str, given: dict[str, Any]) -> None:
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
 @click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md). openacc: platoons of the laws (--methods acc,hdm,mixed) behind the nine real OpenACC leads, beside the real platoons' amplification (openacc.md).")
-@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper). A checkpoint trained for the other scenario is refused.")
+@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper, or openacc: a platoon of it). A checkpoint trained for the other scenario is refused.")
 @click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
 @click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
 @click.option("--videos", is_flag=True, help="Write one video per run into OUT/videos (vacc video), linked from report.html (--suite paper).")
@@ -433,7 +452,7 @@ def evaluate(
     """
     if suite == "openacc":
         _not_for_openacc(click.get_current_context())
-        openacc_suite(Path(out), methods)
+        openacc_suite(Path(out), methods, model_files)
         return None
     seed_list = _seed_list(seed, seeds, suite)
     road = Road(traffic, sun_elevation)

@@ -11,7 +11,10 @@ closest gap.
 Where the lead's own deviation is under :data:`STILL_LEAD_MPS` (a constant-speed lead),
 a ratio means nothing: the table gives the last car's deviation instead (``dev``).
 
-Learned (camera) followers need the camera platoon world; this suite drives the laws.
+Learned followers (``--model NAME=PATH``) drive from their cameras in the camera platoon
+world (:mod:`vacc.platoon_world`): a platoon of the real one's length, every follower the
+model, each starting at the ACC's reference gap for the lead's first speed and settling to
+its own spacing in the first fifth, which the figures leave out.
 """
 
 from __future__ import annotations
@@ -28,8 +31,9 @@ from agent_client.controllers.hdm import HdmParams, HumanDriverModel
 from energy.openacc import OPENACC_FILES, OpenAccRun, read_openacc
 from energy.string_stability import amplification, safety
 from vacc.platoon_sim import lead_profile, simulate_platoon
+from vacc.platoon_world import drive_platoon
 
-__all__ = ["PLATOONS", "STILL_LEAD_MPS", "PlatoonRow", "openacc_rows", "openacc_table", "run_openacc", "simulated_row"]
+__all__ = ["PLATOONS", "STILL_LEAD_MPS", "PlatoonRow", "camera_row", "openacc_rows", "openacc_table", "run_openacc", "simulated_row"]
 
 STILL_LEAD_MPS = 0.1  # [m/s] a lead deviating less than this makes no wave to amplify
 
@@ -86,8 +90,21 @@ def simulated_row(run: OpenAccRun, platoon: str) -> PlatoonRow:
     return _row(run.name, platoon, sim.t, sim.v, sim.gaps, sim.collided is not None)
 
 
-def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS)) -> list[PlatoonRow]:
-    """The real platoon and each simulated kind, file by file.
+def camera_row(run: OpenAccRun, name: str, checkpoint: str) -> PlatoonRow:
+    """A platoon of the real one's length behind ``run``'s recorded lead, every follower the
+    policy ``checkpoint`` driving from its camera (named ``name`` in the table)."""
+    from agent_client.controllers import make_controller  # torch: only for a learned platoon
+
+    t, v = _lead(run)
+    controllers = [make_controller("ddqn", checkpoint=checkpoint) for _ in range(1, run.n_cars)]
+    v0 = float(v[0])
+    sim = drive_platoon(controllers, [controllers[0].cfg.scenario] * len(controllers), (t - t[0], v), [AccController().reference_gap(v0)] * len(controllers),
+                        host_speed=v0)  # fmt: skip
+    return _row(run.name, name, sim.t, sim.v, sim.gaps, sim.collided is not None)
+
+
+def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None) -> list[PlatoonRow]:
+    """The real platoon, each simulated kind and each learned model (name -> checkpoint), file by file.
 
     Raises:
         energy.errors.DataError: a file that does not read.
@@ -97,6 +114,7 @@ def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] =
         run = read_openacc(name)
         rows.append(_row(name, "real", run.t, run.speed, run.ivs, False))
         rows += [simulated_row(run, kind) for kind in platoons]
+        rows += [camera_row(run, model, path) for model, path in (models or {}).items()]
     return rows
 
 
@@ -128,9 +146,9 @@ def openacc_table(rows: Sequence[PlatoonRow]) -> list[str]:
     return lines
 
 
-def run_openacc(out: Path, files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS)) -> str:
+def run_openacc(out: Path, files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None) -> str:
     """Drive the suite; write ``out/openacc.md`` and ``out/openacc.json``; return the table."""
-    rows = openacc_rows(files, platoons)
+    rows = openacc_rows(files, platoons, models)
     table = "\n".join(openacc_table(rows)) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "openacc.md").write_text("# Real ACC platoons (OpenACC) beside simulated ones\n\n" + table)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -15,6 +16,7 @@ from energy.string_stability import amplification
 from vacc.cli import main
 from vacc.openacc_suite import PLATOONS, STILL_LEAD_MPS, openacc_rows, openacc_table
 
+MODELS = Path(__file__).resolve().parents[2] / "models"
 DYNAMIC = "short_setting_dynamic_part10.csv"  # 4 cars, a lead that moves
 STILL = "mixed_dynamic_part5.csv"  # 10 cars behind a constant-speed lead
 
@@ -66,3 +68,23 @@ def test_the_command_writes_the_table_of_all_nine_files_and_refuses_what_it_woul
     ):
         result = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--out", str(out), *args])
         assert result.exit_code == 2 and words in result.output, result.output
+
+
+def test_a_learned_platoon_drives_from_its_cameras_behind_a_real_lead():
+    import dataclasses
+
+    from vacc.openacc_suite import camera_row
+
+    full = read_openacc(DYNAMIC)
+    keep = full.t <= full.t[0] + 40.0  # 40 s of the real lead, two followers: a few seconds
+    run = dataclasses.replace(full, t=full.t[keep], speed=full.speed[:3, keep], ivs=full.ivs[:2, keep], vehicles=full.vehicles[:3])
+    row = camera_row(run, "ice-eco", str(MODELS / "ice-eco.pt"))
+    assert row.platoon == "ice-eco" and row.cars == 3 and not row.collided
+    assert row.min_gap_m > 2.0 and math.isfinite(row.speed_rms) and math.isfinite(row.last_dev_rms)
+
+
+def test_openacc_refuses_a_bad_model_in_one_line(tmp_path):
+    done = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--model", "x=nothing.pt", "--out", str(tmp_path)])
+    assert done.exit_code == 2 and "nothing.pt: no such checkpoint" in done.output
+    done = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--model", "acc=" + str(MODELS / "ice-eco.pt"), "--out", str(tmp_path)])
+    assert done.exit_code == 2 and "taken" in done.output
