@@ -93,10 +93,10 @@ def simulated_row(run: OpenAccRun, platoon: str) -> PlatoonRow:
 def camera_row(run: OpenAccRun, name: str, checkpoint: str) -> PlatoonRow:
     """A platoon of the real one's length behind ``run``'s recorded lead, every follower the
     policy ``checkpoint`` driving from its camera (named ``name`` in the table)."""
-    from agent_client.controllers import make_controller  # torch: only for a learned platoon
+    from agent_client.controllers.ddqn import DDQNController  # torch: only for a learned platoon
 
     t, v = _lead(run)
-    controllers = [make_controller("ddqn", checkpoint=checkpoint) for _ in range(1, run.n_cars)]
+    controllers = [DDQNController.from_checkpoint(checkpoint) for _ in range(1, run.n_cars)]
     v0 = float(v[0])
     sim = drive_platoon(controllers, [controllers[0].cfg.scenario] * len(controllers), (t - t[0], v), [AccController().reference_gap(v0)] * len(controllers),
                         host_speed=v0)  # fmt: skip
