@@ -14,9 +14,10 @@ from vacc.runs import Job, drive_jobs, run_job
 
 pytestmark = pytest.mark.integration
 MODEL = Path(__file__).resolve().parents[2] / "models" / "ice-gap.pt"
-# A road no other test uses: its servers can be told apart by their command line.
+# Roads no other test uses (one per test: xdist may run them side by side), so that their
+# servers can be told apart by their command line.
 ROAD = Road(traffic=3, sun_elevation=(0.417, 0.419))
-MARK = ",".join(map(str, ROAD.sun_elevation))
+OTHER_ROAD = Road(traffic=3, sun_elevation=(0.421, 0.423))
 
 
 def _work(out: Path) -> list[Job]:
@@ -30,14 +31,15 @@ def _work(out: Path) -> list[Job]:
     ]
 
 
-def _our_servers() -> list[int]:
+def _our_servers(road: Road = ROAD) -> list[int]:
+    mark = ",".join(map(str, road.sun_elevation)).encode()
     pids = []
     for entry in Path("/proc").iterdir():
         try:
             cmd = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"sim_server" in cmd and MARK.encode() in cmd:
+        if b"sim_server" in cmd and mark in cmd:
             pids.append(int(entry.name))
     return pids
 
@@ -57,14 +59,14 @@ def test_a_kept_server_drives_each_run_as_a_fresh_server_and_is_reaped(tmp_path:
 
 
 def test_a_kept_server_is_reused_and_reaped_on_close() -> None:
-    kept = runs.KeptServers()
+    kept, args = runs.KeptServers(), OTHER_ROAD.server_args()
     try:
-        first = kept.address(*ROAD.server_args())
-        assert kept.address(*ROAD.server_args()) == first
-        assert len(_our_servers()) == 1
-        kept.discard(*ROAD.server_args())
-        assert not _our_servers()
-        kept.address(*ROAD.server_args())
+        first = kept.address(*args)
+        assert kept.address(*args) == first
+        assert len(_our_servers(OTHER_ROAD)) == 1
+        kept.discard(*args)
+        assert not _our_servers(OTHER_ROAD)
+        kept.address(*args)
     finally:
         kept.close()
-    assert not _our_servers()
+    assert not _our_servers(OTHER_ROAD)
