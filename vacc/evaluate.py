@@ -91,8 +91,9 @@ def _parse_human_files(values: tuple[str, ...]) -> dict[str, str]:
 MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+]*(-[A-Za-z0-9_.+]+)*")  # a log file's stem: logs/<NAME>-test-1.csv
 
 
-def parse_models(values: tuple[str, ...], scenario: str) -> dict[str, str]:
-    """--model NAME=PATH (repeatable): any checkpoint, evaluated as a method named NAME.
+def parse_models(values: tuple[str, ...], scenario: str | None) -> dict[str, str]:
+    """--model NAME=PATH (repeatable): any checkpoint, evaluated as a method named NAME
+    (trained for ``scenario``; None: either, as in a platoon each drives its own vehicle).
 
     Raises:
         click.BadParameter: not NAME=PATH, a NAME taken by a method or given twice, no such
@@ -113,7 +114,7 @@ def parse_models(values: tuple[str, ...], scenario: str) -> dict[str, str]:
             trained = read_checkpoint(path)["config"].get("scenario", "ice")
         except InputFileError as exc:
             raise click.BadParameter(str(exc), param_hint="--model") from None
-        if trained != scenario:
+        if scenario is not None and trained != scenario:
             raise click.BadParameter(f"{path} was trained for the {trained} scenario, not {scenario}: add --scenario {trained}", param_hint="--model")
         models[name] = path
     return models
@@ -361,26 +362,11 @@ def openacc_suite(out: Path, methods: str | None, model_files: tuple[str, ...] =
     kinds = list(PLATOONS) if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
     if (not kinds and not model_files) or any(k not in PLATOONS for k in kinds):
         raise click.BadParameter(f"the openacc suite drives platoons of {', '.join(PLATOONS)}, got {methods!r}", param_hint="--methods")
-    models: dict[str, str] = {}
-    for item in model_files:  # each model drives its own vehicle: its checkpoint's scenario
-        path = item.partition("=")[2]
-        scenario = _trained_scenario(path) if Path(path).is_file() else "ice"
-        models.update(parse_models((item,), scenario))
+    models = parse_models(model_files, None)  # each model drives its own vehicle
     if models.keys() & set(kinds):
         raise click.BadParameter(f"--model names {sorted(models.keys() & set(kinds))}, which are platoon kinds", param_hint="--model")
     click.echo(run_openacc(out, platoons=kinds, models=models), nl=False)
     click.echo(f"Wrote {out}/openacc.md and openacc.json")
-
-
-def _trained_scenario(path: str) -> str:
-    """The scenario a checkpoint was trained for ("ice" for an unreadable one: parse_models says why)."""
-    from agent_client.errors import InputFileError
-    from agent_client.rl.checkpoint import read_checkpoint
-
-    try:
-        return str(read_checkpoint(path)["config"].get("scenario", "ice"))
-    except InputFileError:
-        return "ice"
 
 
 def _not_for_openacc(ctx: click.Context) -> None:
