@@ -47,7 +47,7 @@ from protocol.messages import MIN_IMAGE_SIDE
 from sim_server import scenery as sc
 from sim_server.scene import CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, CarView, SceneState
 
-__all__ = ["CameraConfig", "Renderer"]
+__all__ = ["CameraConfig", "Renderer", "in_format"]
 
 SHIFT = 4  # fractional bits of cv2 drawing coordinates (1/16 px)
 ONE = 1 << SHIFT
@@ -1223,3 +1223,9 @@ _STRIPS = (
 # ground layers per camera configuration: {config: {bucket: (ground, shadowed twin)}},
 # bucket -1 holding the full frame without dashes; shared by all renderers
 _GROUND_CACHE: dict[CameraConfig, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+
+
+def in_format(rgb: np.ndarray, image_format: str) -> np.ndarray:
+    """A rendered RGB frame in a session's image format: "rgb" as is, "gray" converted
+    (the pixels a policy sees, through the server or in a platoon driven in-process)."""
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if image_format == "gray" else rgb

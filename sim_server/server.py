@@ -492,16 +492,12 @@ class SimServer:
         }
 
     def _render(self, s: _Session) -> np.ndarray:
+        # only image sessions pay for the renderer's import
+        from sim_server.render import CameraConfig, Renderer, in_format
+
         if s.renderer is None:
-            from sim_server.render import CameraConfig, Renderer  # only image sessions pay for it
-
             s.renderer = Renderer(CameraConfig(width=s.image_size[0], height=s.image_size[1]))
-        rgb = s.renderer.render(self.world.scene())
-        if s.image_format == "gray":
-            import cv2
-
-            return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        return rgb
+        return in_format(s.renderer.render(self.world.scene()), s.image_format)
 
     def _expire(self, now: float) -> None:
         while self.pending:

@@ -35,17 +35,12 @@ class _Camera:
     def frame(self, world: Any) -> tuple[bytes | None, tuple[int, int, int] | None]:
         if self.format == "none":
             return None, None
+        from sim_server.render import CameraConfig, Renderer, in_format
+
         if self.renderer is None:
-            from sim_server.render import CameraConfig, Renderer
-
             self.renderer = Renderer(CameraConfig(width=self.size[0], height=self.size[1]))
-        rgb = self.renderer.render(world.scene())
-        if self.format == "gray":
-            import cv2
-
-            gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-            return gray.tobytes(), (*gray.shape, 1)
-        return rgb.tobytes(), rgb.shape
+        image = in_format(self.renderer.render(world.scene()), self.format)
+        return image.tobytes(), (image.shape[0], image.shape[1], image.shape[2] if image.ndim == 3 else 1)
 
 
 def _observation(st: WorldState, image: bytes | None, shape: tuple[int, int, int] | None) -> dict[str, Any]:
