@@ -137,6 +137,7 @@ def run_card(
             "traffic": w.get("traffic"), "sun_elevation": w.get("sun_elevation"),  # None: a server older than protocol 5 does not say
             "seed_salt": w.get("seed_salt"), "server": w.get("server"), "address": f"{addr[0]}:{addr[1]}", "spawned": spawned,
             "protocol": w.get("version"), "control_period": w.get("control_period"), "physics_dt": w.get("physics_dt"),
+            **({"seat": w["seat"], "seats": w["seats"]} if "seat" in w else {}),  # a platoon's seat: car seat + 1 behind the lead
         },
         "controller": {
             "name": controller,
@@ -438,6 +439,7 @@ def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: st
 @click.option("--joystick", default=0, show_default=True, type=int, help="--controller keyboard: SDL index of the joystick/wheel whose pedals to read, if plugged in; -1: none.")
 @click.option("--joystick-map", default="throttle=1,brake=2,released=1,pressed=-1,deadzone=0.05", show_default=True, callback=parse_joystick_map, help="Pedal axes and raw travel (G27-style default).")
 @click.option("--window-scale", default=2, show_default=True, type=click.IntRange(1, 4), help="--controller keyboard: zoom of the 400x400 camera image.")
+@click.option("--seat", default=None, type=click.IntRange(0, 15), help="Take this seat of a platoon server's (vacc serve --followers; needs --server), 0 nearest the lead. Default: the first free one there.")
 @click.option("--view", is_flag=True, help="Watch the run in a window: the camera, a head-up strip (speed, set speed, gap, acceleration, force) and a scrolling plot of gap and speed. The log is the same as without it.")
 def drive(
     controller: str,
@@ -466,6 +468,7 @@ def drive(
     joystick: int,
     joystick_map: JoystickMap,
     window_scale: int,
+    seat: int | None,
     view: bool,
 ) -> None:
     """Drive one episode with a controller over UDP and write the run log.
@@ -479,6 +482,8 @@ def drive(
     """
     check_start(host_speed, gap, set_speed)
     check_view(view, controller)
+    if seat is not None and server is None:
+        raise click.UsageError("--seat needs --server: a platoon server's address (vacc serve --followers N, or vacc platoon)")
     road = spawned_road(server, traffic, sun_elevation)
     trace = load_lead(trajectory)
     start = {"set_speed": set_speed, "host_speed": host_speed, "gap": gap}
@@ -498,7 +503,7 @@ def drive(
     keyboard = functools.partial(open_keyboard, window_scale=window_scale, joystick=joystick, joystick_map=joystick_map) if live else None
     card, summary = drive_logged(
         episode, policy, server=server, server_args=server_args, controller=controller, replay=replay, keyboard=keyboard,
-        faults=faults, session_options={"give_up": give_up, "image_format": image_format, "image_size": image_size, "key": key},
+        faults=faults, session_options={"give_up": give_up, "image_format": image_format, "image_size": image_size, "key": key, "seat": seat},
         checkpoint=checkpoint, human_file=human_file, server_faults=server_faults, log_path=log_path, record_path=record_path,
         watch=watchers(episode, view=view, progress=not live and sys.stderr.isatty()),
     )  # fmt: skip

@@ -95,6 +95,10 @@ class Session:
         faults: fault injection on the client's sends (tests, benchmarks).
         client_name: shown in the server's logs.
         key: shared key (``protocol.auth.load_key``); the server must hold the same.
+        seat: a platoon server's seat to take (0 nearest the lead); None: the first free
+            one. A platoon's replies wait for every seat, so a seated session waits the
+            server's ``seat_timeout`` (steps) or ``join_timeout`` (resets) longer than
+            ``give_up``: the server's give-up, which names the seat it waited for, comes first.
     """
 
     def __init__(
@@ -111,8 +115,10 @@ class Session:
         max_datagram: int = DEFAULT_DATAGRAM,
         client_name: str = "vacc-client",
         key: bytes | None = None,
+        seat: int | None = None,
     ):
         self.server = resolve(server)
+        self.seat = seat
         self.image_format = image_format
         self.image_size = image_size
         self.give_up = give_up
@@ -165,6 +171,8 @@ class Session:
             "image_height": int(self.image_size[1]),
             "max_datagram": self.max_datagram,
         }
+        if self.seat is not None:
+            hello["seat"] = int(self.seat)
         deadline = time.monotonic() + self.give_up
         busy: SessionError | None = None
         while True:
@@ -186,6 +194,7 @@ class Session:
             self.endpoint.establish(welcome["session"])  # the keys of the answer that carried it
         self.welcome = welcome
         self.token = welcome["session"]
+        self.seat = welcome.get("seat", self.seat)
         self._keepalive = threading.Thread(target=self._keep_alive, name="vacc-keepalive", daemon=True)
         self._keepalive.start()
         return welcome
@@ -283,6 +292,7 @@ class Session:
             f"reset of episode {episode}",
             error_match=lambda e: e["episode"] in (episode, None),
             rtt=self._rtt["reset"],
+            extra=self._waits("join_timeout"),
         )
         self.frame = first
         return obs
@@ -302,6 +312,9 @@ class Session:
             lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame + 1,
             f"step of frame {frame}",
             error_match=lambda e: e["frame"] in (frame, None) and e["episode"] in (episode, None),
+            extra=self._waits("seat_timeout"),
+            # a platoon server sends the frame acted on again while it awaits this step: it was lost
+            nudge=(lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame) if self._waits("seats") else None,
         )
         self.frame = frame + 1
         return obs
@@ -330,6 +343,10 @@ class Session:
     def _where(self) -> str:
         return f"{self.server[0]}:{self.server[1]}"
 
+    def _waits(self, name: str) -> float:
+        """[s] how long a platoon server may hold a reply for the other seats (0 for one car)."""
+        return float((self.welcome or {}).get(name, 0.0))
+
     def _check_open(self) -> None:
         if self._closed or self.token is None:
             raise FatalSessionError(f"session with {self._where()} is not open")
@@ -343,12 +360,14 @@ class Session:
         error_match: Callable[[dict[str, Any]], bool] = lambda e: True,
         pad_to: int = 0,
         rtt: _RoundTrip | None = None,
+        extra: float = 0.0,
+        nudge: Callable[[dict[str, Any]], bool] | None = None,
     ) -> dict[str, Any]:
         endpoint, server = self.endpoint, self.server
         datagrams = endpoint.pack(msg, pad_to=pad_to)
         endpoint.send_datagrams(datagrams, server)
         now = self._last_send = time.monotonic()
-        deadline = deadline if deadline is not None else now + self.give_up
+        deadline = deadline if deadline is not None else now + self.give_up + extra
         sent_at = now
         # Re-send timeout from measured round trips (TCP-style, Karn's rule: only
         # requests answered without a re-send update the estimate).
@@ -365,6 +384,12 @@ class Session:
                     if not resent:
                         rtt.sample(now - sent_at)
                     return reply
+                if nudge is not None and nudge(reply):
+                    endpoint.send_datagrams(datagrams, server)  # the server asks again: re-send at once
+                    self._last_send = now
+                    self.resends += 1
+                    resent = True
+                    continue
                 if reply["type"] == "error" and error_match(reply):
                     text = f"server {self._where()}: {reply['name']}: {reply['detail']}"
                     if reply["fatal"]:
@@ -382,7 +407,7 @@ class Session:
                                         f"the server was never reached (is one running there?){hint}")  # fmt: skip
                 raise ServerTimeout(
                     f"no reply from server {self._where()} to {what} (episode {self.episode}, "
-                    f"last frame {self.frame}) within {self.give_up:g} s{hint}"
+                    f"last frame {self.frame}) within {self.give_up + extra:g} s{hint}"
                 )
             if now >= resend_at:
                 log.debug("no reply from %s to %s within %.3f s: re-sent (frame %d)", self._where(), what, wait, self.frame)

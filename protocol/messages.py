@@ -21,6 +21,7 @@ __all__ = [
     "KEYED_VERSION",
     "SUPPORTED_VERSIONS",
     "FIELDS_SINCE",
+    "OPTIONAL_FIELDS",
     "MESSAGE_TYPES",
     "ErrorCode",
     "FATAL_CODES",
@@ -71,9 +72,10 @@ class ErrorCode(IntEnum):
     EPISODE_OVER = 8  # step after the episode terminated or was truncated
     NO_EPISODE = 9  # step before any reset, or for another episode
     INTERNAL = 10  # a bug on the server (fatal)
+    SEAT_LOST = 11  # a platoon gave up on a seat: every seat's session is ended (fatal)
 
 
-FATAL_CODES = frozenset({ErrorCode.BAD_VERSION, ErrorCode.NO_SESSION, ErrorCode.INTERNAL})
+FATAL_CODES = frozenset({ErrorCode.BAD_VERSION, ErrorCode.NO_SESSION, ErrorCode.INTERNAL, ErrorCode.SEAT_LOST})
 
 _INT = ("int",)
 _FLOAT = ("float",)
@@ -86,7 +88,7 @@ _ARRAY = ("array",)
 _OPT_ARRAY = ("array", "nil")
 _OPT_BIN = ("bin", "nil")
 
-# type tag -> {field: allowed wire types}. Every field is required; nil is a value.
+# type tag -> {field: allowed wire types}. Every field is required but OPTIONAL_FIELDS; nil is a value.
 SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
     # client -> server: open a session
     "hello": {
@@ -97,6 +99,7 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "image_width": _INT,  # [px]
         "image_height": _INT,  # [px]
         "max_datagram": _INT,  # [bytes] largest datagram the client accepts
+        "seat": _INT,  # optional: the platoon seat asked for, 0 nearest the lead; -1 or absent: the first free one
     },
     # server -> client: session opened
     "welcome": {
@@ -114,6 +117,11 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
         "seed_salt": _INT,  # the server's --seed as mixed into every episode seed (version 3)
         "traffic": _INT,  # cars in each adjacent lane, twice as many oncoming: the server's --traffic (version 5)
         "sun_elevation": _ARRAY,  # [rad] [low, high]: the range of each episode's sun height, the server's --sun-elevation (version 5)
+        # a platoon server's only (optional: a single-car server sends none of them)
+        "seat": _INT,  # the seat this session drives, 0 nearest the lead
+        "seats": _INT,  # the platoon's followers
+        "seat_timeout": _FLOAT,  # [s] how long the platoon waits for a seat's action before it gives up
+        "join_timeout": _FLOAT,  # [s] how long it waits for every seat's reset
     },
     # client -> server: start episode `episode` (answered with obs frame 0, or -preroll)
     "reset": {
@@ -172,6 +180,12 @@ SCHEMAS: dict[str, dict[str, tuple[str, ...]]] = {
 }
 
 MESSAGE_TYPES = frozenset(SCHEMAS)
+
+# Fields a message may leave out: a platoon's seats. A peer that knows nothing of
+# platoons never sends or receives them, so they need no new version.
+OPTIONAL_FIELDS: frozenset[tuple[str, str]] = frozenset(
+    {("hello", "seat"), ("welcome", "seat"), ("welcome", "seats"), ("welcome", "seat_timeout"), ("welcome", "join_timeout")}
+)
 
 # (type, field) -> the version that added it; older versions' messages lack it.
 FIELDS_SINCE: dict[tuple[str, str], int] = {("welcome", "seed_salt"): 3, ("reset", "preroll"): 4, ("welcome", "traffic"): 5, ("welcome", "sun_elevation"): 5}
@@ -232,13 +246,13 @@ def validate(msg: Any, version: int = PROTOCOL_VERSION) -> dict[str, Any]:
     fields = schema(kind, version) if isinstance(kind, str) else None
     if fields is None:
         raise SchemaError(f"unknown message type {kind!r}")
-    if len(msg) != len(fields) + 1:
-        extra = sorted(set(map(str, msg)) - set(fields) - {"type"})
-        missing = sorted(set(fields) - set(msg))
+    extra = sorted(set(map(str, msg)) - set(fields) - {"type"})
+    missing = sorted(k for k in fields if k not in msg and (kind, k) not in OPTIONAL_FIELDS)
+    if extra or missing:
         raise SchemaError(f"{kind}: unknown fields {extra}, missing fields {missing}")
     for name, allowed in fields.items():
         if name not in msg:
-            raise SchemaError(f"{kind}: missing field {name!r}")
+            continue  # optional
         got = _wire_type(msg[name])
         if got not in allowed and not (got == "int" and "float" in allowed):
             raise SchemaError(f"{kind}.{name}: expected {'|'.join(allowed)}, got {got}")

@@ -14,7 +14,7 @@ import ipaddress
 import socket
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Collection, Hashable
 from dataclasses import dataclass
 from typing import Any
 
@@ -123,8 +123,8 @@ class Endpoint:
             ``SUPPORTED_VERSIONS``); with one, only ``KEYED_VERSION``.
         sessions: with a key, the server's side: the channel and address of a
             session by its sid (None: this is a client).
-        live_peer: the address of the session that holds the world, if any: its
-            messages are charged to a decode budget of their own.
+        live_peers: the addresses of the sessions that hold the world (a platoon's
+            seats): their messages are charged to decode budgets of their own.
     """
 
     def __init__(
@@ -139,7 +139,7 @@ class Endpoint:
         peer: Address | None = None,
         versions: tuple[int, ...] = (PROTOCOL_VERSION,),
         sessions: Callable[[bytes], tuple[Channel, Any] | None] | None = None,
-        live_peer: Callable[[], Address | None] = lambda: None,
+        live_peers: Callable[[], Collection[Address]] = lambda: (),
     ):
         self.sock = sock
         for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
@@ -157,7 +157,7 @@ class Endpoint:
             self.keys = ClientKeys(key) if sessions is None else ServerKeys(key, sessions)
         self.reply_sealer: Any = None  # a server's: what seals answers to the datagram just received
         self.peer = peer
-        self.live_peer = live_peer
+        self.live_peers = live_peers
         self.budget = DecodeBudget()
         self.others = DecodeBudget(rate=OTHERS_BYTE_RATE, burst=OTHERS_BYTE_BURST, max_peers=1)
         self._sender = FaultySender(sock, faults) if faults and faults.active else None
@@ -178,25 +178,27 @@ class Endpoint:
         """Close the socket; safe to call twice."""
         self.sock.close()
 
-    def pack(self, msg: dict[str, Any], *, pad_to: int = 0, version: int | None = None) -> list[bytes]:
+    def pack(self, msg: dict[str, Any], *, pad_to: int = 0, version: int | None = None, max_datagram: int | None = None) -> list[bytes]:
         """Encode and fragment a message into datagrams, ready to (re)send.
 
         The datagrams are sealed (with a key) only when sent, so that every
         transmission carries a fresh sequence number. ``pad_to`` pads a
         single-fragment message to that many bytes on the wire. Message ids
         count from 1; a re-send reuses its datagrams, so its id too. A keyed
-        client's hello starts a new handshake (a fresh nonce).
+        client's hello starts a new handshake (a fresh nonce). ``max_datagram``
+        overrides :attr:`max_datagram` (a platoon server's seats each chose theirs).
         """
         self._msg_id = (self._msg_id + 1) & 0xFFFFFFFF
         version = self.version if version is None else version
+        max_datagram = self.max_datagram if max_datagram is None else max_datagram
         if self.keys is None:
-            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, version=version)
+            datagrams = fragment(encode(msg), self._msg_id, max_datagram, version=version)
         else:
             flags = FLAG_MAC
             if isinstance(self.keys, ClientKeys) and msg["type"] == "hello":
                 self.keys.begin()
                 flags |= FLAG_HANDSHAKE
-            datagrams = fragment(encode(msg), self._msg_id, self.max_datagram, flags=flags, trailer=TRAILER_BYTES, version=version)
+            datagrams = fragment(encode(msg), self._msg_id, max_datagram, flags=flags, trailer=TRAILER_BYTES, version=version)
         if pad_to and len(datagrams) == 1:
             datagrams = [pad(datagrams[0], pad_to - (TRAILER_BYTES if self.keys else 0))]
         return datagrams
@@ -273,7 +275,8 @@ class Endpoint:
         size = len(datagram)
         whole = over_budget = False
         sealer = self.reply_sealer = None
-        if self.peer is None and addr != self.live_peer():
+        live = self.peer is not None or addr in self.live_peers()
+        if not live:
             # A server: strangers share one byte budget, checked before any work on their
             # datagrams, so that many of them together cannot starve the live session.
             try:
@@ -286,7 +289,7 @@ class Endpoint:
             nonlocal over_budget
             over_budget = True  # until the budget has paid for it
             # The live session is never starved by other sources: they share one budget.
-            self.budget.charge(addr if addr == self.live_peer() else OTHERS, objects, now)
+            self.budget.charge(addr if live and self.peer is None else OTHERS, objects, now)
             over_budget = False
 
         try:

@@ -14,6 +14,8 @@ from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
 from protocol.options import SunElevation, key_option
 from protocol.transport import is_loopback
+from sim_server.platoon import MAX_FOLLOWERS
+from sim_server.seats import JOIN_TIMEOUT, SEAT_TIMEOUT
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig
 
@@ -43,6 +45,9 @@ log = logging.getLogger("vacc.server")
 @click.option("--max-datagram", default=DEFAULT_DATAGRAM, show_default=True, type=click.IntRange(MIN_DATAGRAM, MAX_DATAGRAM), help="Largest datagram sent, bytes (use ~1400 across a real network).")
 @click.option("--allow-remote", is_flag=True, help="Allow binding an address other than loopback (needs --key-file).")
 @click.option("--key-file", default=None, type=click.Path(dir_okay=False), help="Shared key: every datagram both ways carries a MAC; clients need the same file.")
+@click.option("--followers", default=0, show_default=True, type=click.IntRange(0, MAX_FOLLOWERS), help=f"Host a platoon of this many followers (1..{MAX_FOLLOWERS}), one client per seat; 0: one car.")
+@click.option("--seat-timeout", default=SEAT_TIMEOUT, show_default=True, type=click.FloatRange(0.1, 3600), help="Platoon: seconds to wait for a seat's action once another seat's came, then end every seat's session, naming it.")
+@click.option("--join-timeout", default=JOIN_TIMEOUT, show_default=True, type=click.FloatRange(0.1, 3600), help="Platoon: seconds to wait for every seat's reset, from the first join or reset.")
 @click.option("--max-seconds", default=None, type=click.FloatRange(0), help="Exit after this many seconds (for scripts).")
 @click.option("--parent-pid", default=None, type=int, help="Exit when this process dies (set by launchers).")
 @click.option("--log-level", default="info", show_default=True, type=click.Choice(LOG_LEVELS), help="Least severe log messages shown on stderr (the stats line at exit is info; spawned servers default to warning, see `vacc --log-level`).")
@@ -59,11 +64,14 @@ def serve(
     max_datagram: int,
     allow_remote: bool,
     key_file: str | None,
+    followers: int,
+    seat_timeout: float,
+    join_timeout: float,
     max_seconds: float | None,
     parent_pid: int | None,
     log_level: str,
 ) -> None:
-    """Run a simulator server: one world, lockstep over UDP.
+    """Run a simulator server: one world, lockstep over UDP (a platoon with --followers).
 
     Prints 'vacc-server listening on HOST:PORT' on stdout once bound, then serves until
     interrupted. Counters of served and rejected datagrams are printed at exit.
@@ -89,6 +97,9 @@ def serve(
         max_datagram=max_datagram,
         parent_pid=parent_pid,
         key=key,
+        followers=followers,
+        seat_timeout=seat_timeout,
+        join_timeout=join_timeout,
     )
     try:
         server = SimServer(config)

@@ -63,7 +63,7 @@ class PlatoonWorld:
         *,
         trace: tuple[np.ndarray, np.ndarray] | None = None,
         duration: float | None = None,
-        gaps: Sequence[float] | None = None,
+        gaps: Sequence[float | None] | None = None,
         host_speed: float | None = None,
         set_speed: float | None = None,
         preroll: int = 0,
@@ -74,8 +74,8 @@ class PlatoonWorld:
             scenarios: each follower's vehicle model, "ice" or "ev"; follower 0's also picks
                 the lead's trajectory, as in a single-car world.
             seed, trajectory, trace, duration, set_speed, preroll: as :meth:`World.reset`.
-            gaps: each follower's initial gap [m] to the car ahead; follower 0's default is
-                drawn as in a single-car world, the others' default is follower 0's.
+            gaps: each follower's initial gap [m] to the car ahead, or None for its default:
+                follower 0's is drawn as in a single-car world, the others' is follower 0's.
             host_speed: every follower's initial speed [m/s]; default drawn for follower 0,
                 and the others start at follower 0's.
 
@@ -95,7 +95,7 @@ class PlatoonWorld:
         for i, world in enumerate(self.worlds[1:], start=1):
             # the car ahead's own speeds replace this placeholder step by step (World.step)
             still = (np.array([0.0, span]), np.array([v0, v0]))
-            gap = first.gap if gaps is None else gaps[i]
+            gap = gaps[i] if gaps is not None and gaps[i] is not None else first.gap
             self.states.append(world.reset(scenarios[i], follower_seed(seed, i), TRACE, trace=still, duration=duration, host_speed=v0,
                                            gap=gap, set_speed=set_speed, preroll=preroll))  # fmt: skip
         return list(self.states)

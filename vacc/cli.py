@@ -32,6 +32,7 @@ COMMANDS = {
     "seeds": "vacc.seeds_cmd:seeds",
     "video": "vacc.video:video",
     "plot": "vacc.plot:plot",
+    "platoon": "vacc.platoon_cmd:platoon",
 }
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 import click
@@ -65,8 +66,22 @@ def _fmt(value: float | int | str | None) -> str:
     return f"{x:.4g}" if abs(x) < 1e4 else f"{x:.4e}"
 
 
+def platoon_metrics(folder: Path, as_json: bool) -> None:
+    """Print a platoon folder's figures (:func:`vacc.platoon_cmd.platoon_figures`)."""
+    from vacc.platoon_cmd import figure_lines, platoon_figures
+
+    try:
+        result = platoon_figures(folder)
+    except RunLogError as e:
+        raise click.ClickException(str(e)) from None
+    if as_json:
+        click.echo(json.dumps(json_safe(result["figures"]), indent=2, allow_nan=False))
+        return
+    click.echo("\n".join(figure_lines(result)))
+
+
 @click.command("metrics")
-@click.argument("run_csv", type=click.Path(dir_okay=False))
+@click.argument("run_csv", type=click.Path())
 @click.option(
     "--vehicle",
     type=click.Choice(VEHICLE_NAMES),
@@ -107,7 +122,12 @@ def metrics(
 
     The vehicle is the scenario's on the log's card (run.csv -> run.card.json);
     --vehicle overrides it, and one of the other powertrain is said on stderr.
+    RUN_CSV may be a platoon's folder (vacc platoon --out): its string-stability,
+    safety and energy figures are printed.
     """
+    if Path(run_csv).is_dir():
+        platoon_metrics(Path(run_csv), as_json)
+        return
     try:
         card = read_card(run_csv)
     except InputFileError as e:  # the metrics stand without it
