@@ -118,3 +118,15 @@ def test_error_builder_marks_fatal_codes():
     assert err["fatal"] is True and err["name"] == "NO_SESSION"
     assert messages.error(messages.ErrorCode.BAD_FRAME, "x")["fatal"] is False
     messages.validate(err)
+
+
+def test_a_platoons_seat_fields_are_optional_and_typed():
+    from protocol.messages import validate
+
+    hello = {"type": "hello", "version": 5, "nonce": b"n" * 8, "client": "c", "image_format": "none", "image_width": 0,
+             "image_height": 0, "max_datagram": 1400}  # fmt: skip
+    assert validate(dict(hello)) and validate({**hello, "seat": 3})
+    with pytest.raises(SchemaError, match="hello.seat: expected int, got str"):
+        validate({**hello, "seat": "3"})
+    with pytest.raises(SchemaError, match=r"unknown fields \['seats'\]"):
+        validate({**hello, "seats": 3})  # a welcome's field, not a hello's
