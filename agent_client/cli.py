@@ -42,7 +42,13 @@ from agent_client.outputs import writable_file_option, write_cause
 from agent_client.runlog import COLUMNS, file_sha256, write_card
 from agent_client.session import GIVE_UP, Session
 from agent_client.traces import load_trace
-from protocol.constants import CAMERA_SIZE, SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import (
+    CAMERA_SIZE,
+    MAX_FOLLOWERS,
+    SUN_ELEVATION,
+    TRAFFIC_PER_LANE,
+    TRAFFIC_PER_LANE_RANGE,
+)
 from protocol.faults import FaultConfig
 from protocol.options import SunElevation, key_option
 from protocol.scenarios import (
@@ -439,7 +445,7 @@ def echo_summary(summary: DriveSummary, episode: DriveEpisode, *, controller: st
 @click.option("--joystick", default=0, show_default=True, type=int, help="--controller keyboard: SDL index of the joystick/wheel whose pedals to read, if plugged in; -1: none.")
 @click.option("--joystick-map", default="throttle=1,brake=2,released=1,pressed=-1,deadzone=0.05", show_default=True, callback=parse_joystick_map, help="Pedal axes and raw travel (G27-style default).")
 @click.option("--window-scale", default=2, show_default=True, type=click.IntRange(1, 4), help="--controller keyboard: zoom of the 400x400 camera image.")
-@click.option("--seat", default=None, type=click.IntRange(0, 15), help="Take this seat of a platoon server's (vacc serve --followers; needs --server), 0 nearest the lead. Default: the first free one there.")
+@click.option("--seat", default=None, type=click.IntRange(0, MAX_FOLLOWERS - 1), help="Take this seat of a platoon server's (vacc serve --followers; needs --server), 0 nearest the lead. Default: the first free one there.")
 @click.option("--view", is_flag=True, help="Watch the run in a window: the camera, a head-up strip (speed, set speed, gap, acceleration, force) and a scrolling plot of gap and speed. The log is the same as without it.")
 def drive(
     controller: str,

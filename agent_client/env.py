@@ -158,6 +158,8 @@ class VisionACCEnv(gym.Env):
     ``zoom``: 1, the paper's preprocessing (a 200x200 gray camera, the 400x400 one
     halved); 2, the same 105x150 window at full resolution (a 400x400 gray camera;
     :mod:`agent_client.preprocess`).
+    ``seat``: a platoon server's seat to drive (:mod:`agent_client.platoon_env` drives
+    every seat at once); None: the first free one.
 
     ## Version history
     * v0: first version; lead scenarios, ``set_speed`` and the ``host_speed``/``gap``
@@ -190,6 +192,7 @@ class VisionACCEnv(gym.Env):
         eco_weights: tuple[float, ...] = ECO_WEIGHTS,
         preroll: bool = False,
         crash_reward: float | None = None,
+        seat: int | None = None,
     ):
         if crash_reward is not None and not np.isfinite(crash_reward):
             raise ValueError(f"crash_reward must be finite, got {crash_reward}")
@@ -238,7 +241,7 @@ class VisionACCEnv(gym.Env):
         # exactly as the server would, so the observation does not change.
         image_format = "gray" if render_mode is None else "rgb"
         self.session = self._stack.enter_context(
-            Session(addr, image_format=image_format, image_size=image_size, give_up=give_up, client_name="vacc-env", key=key)
+            Session(addr, image_format=image_format, image_size=image_size, give_up=give_up, client_name="vacc-env", key=key, seat=seat)
         )
         self._stacker = FrameStacker(frame_stack, stack_stride)
         self._last_image: np.ndarray | None = None

@@ -48,3 +48,4 @@ TRAFFIC_PER_LANE = 3  # cars in each adjacent lane (twice as many oncoming): the
 TRAFFIC_PER_LANE_RANGE = (0, 10)  # 10 a lane is one car every 35 m of the 350 m traffic window
 SUN_ELEVATION = (0.35, 1.2)  # [rad] the range the sun's height is drawn from per episode: the server's default --sun-elevation
 SUN_ELEVATION_LIMITS = (0.05, 1.5)  # [rad] any --sun-elevation range lies within these (a sun on the horizon casts endless shadows)
+MAX_FOLLOWERS = 16  # a platoon server's most seats (vacc serve --followers)

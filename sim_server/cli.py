@@ -8,13 +8,17 @@ import sys
 
 import click
 
-from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import (
+    MAX_FOLLOWERS,
+    SUN_ELEVATION,
+    TRAFFIC_PER_LANE,
+    TRAFFIC_PER_LANE_RANGE,
+)
 from protocol.faults import FaultConfig
 from protocol.fragment import DEFAULT_DATAGRAM, MAX_DATAGRAM, MIN_DATAGRAM
 from protocol.logs import LOG_LEVELS
 from protocol.options import SunElevation, key_option
 from protocol.transport import is_loopback
-from sim_server.platoon import MAX_FOLLOWERS
 from sim_server.seats import JOIN_TIMEOUT, SEAT_TIMEOUT
 from sim_server.server import ServerConfig, SimServer
 from sim_server.world import WorldConfig

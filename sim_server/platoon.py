@@ -19,13 +19,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from protocol.constants import MAX_FOLLOWERS
 from protocol.scenarios import TRACE
 from sim_server.errors import InitialConditionError
 from sim_server.world import SEED_MASK, World, WorldConfig, WorldState
 
 __all__ = ["MAX_FOLLOWERS", "PlatoonWorld", "follower_seed"]
-
-MAX_FOLLOWERS = 16
 
 
 def follower_seed(seed: int, follower: int) -> int:

@@ -7,7 +7,8 @@ client session per follower (a *seat*), and the two barriers that keep them in s
   longest any seat asked for; a seat that asked for a shorter one is answered when the
   platoon reaches its first frame (``-preroll``), so every seat's reset is answered
   with the frame it asked for. Before that frame it coasts, as every car does in a
-  pre-roll.
+  pre-roll. A reset while an episode runs abandons it: the other seats' steps are
+  answered ``EPISODE_OVER``, and the platoon waits for every seat's reset.
 - **Step.** Frame k advances when every seat that has reached its first frame sent
   its action for frame k. Repeats are answered from each seat's reply cache, so loss,
   duplication and reordering change nothing.
@@ -70,6 +71,7 @@ class PlatoonLockstep:
         self.waiting_since: float | None = None  # [s] monotonic: when the open barrier began
         self.nudge_at: float | None = None  # [s] monotonic: when the seats still awaited are sent their observation again
         self._nudge_every = NUDGE_FIRST
+        self.abandoned = "no platoon episode is running"  # why a step finds none
 
     @property
     def followers(self) -> int:

@@ -546,7 +546,9 @@ class SimServer:
             self._error(s, addr, ErrorCode.EPISODE_OVER, f"episode {episode} ended at frame {s.frame} ({s.state.reason})", episode=episode, frame=frame)
             return
         if self.platoon is not None:
-            if s.action is None:  # else a repeat while the other seats' actions are awaited
+            if self.platoon.frame is None:
+                self._error(s, addr, ErrorCode.EPISODE_OVER, self.platoon.abandoned, episode=episode, frame=frame)
+            elif s.action is None:  # else a repeat while the other seats' actions are awaited
                 self.platoon.ask_step(s, float(u), time.monotonic())
                 self._advance()
             return
@@ -568,8 +570,13 @@ class SimServer:
         if (s.asked is not None and s.asked.episode == episode) or s.pending_episode == episode:
             return  # a repeat while the other seats are awaited
         if platoon.running:
-            self._give_up(f"seat {s.seat} (client {where(s.addr)}) started a new episode at frame {platoon.frame}")
-            return
+            # the episode is abandoned; seats that already acted on this frame are told so at once
+            platoon.abandoned = f"seat {s.seat} asked for a new episode at frame {platoon.frame}"
+            for x in self.seats:
+                if x is not None and x.action is not None:
+                    x.action = None
+                    self._send_to(x, m.error(ErrorCode.EPISODE_OVER, platoon.abandoned, episode=x.episode, frame=x.frame))
+            platoon.clear()
         lead = {k: args[k] for k in ("seed", "trajectory", "trace", "duration", "host_speed", "set_speed")}
         platoon.ask_reset(s, SeatReset(episode, args["scenario"], args["gap"], args["preroll"], lead), time.monotonic())
         self._advance()

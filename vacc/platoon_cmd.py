@@ -28,8 +28,8 @@ from agent_client.runlog import read_card
 from energy.openacc import METADATA_ROWS, OPENACC_FILES, read_openacc
 from energy.runlog import read_run_log
 from energy.string_stability import platoon_energy, string_stability
+from protocol.constants import MAX_FOLLOWERS
 from protocol.scenarios import SCENARIOS, TRAJECTORIES
-from sim_server.platoon import MAX_FOLLOWERS
 from sim_server.seats import SEAT_TIMEOUT
 
 __all__ = ["Follower", "parse_followers", "read_platoon", "platoon_figures", "figure_lines", "platoon"]

@@ -159,3 +159,25 @@ def test_a_killed_client_ends_the_others_naming_its_seat(tmp_path, spawn):
 def test_drive_seat_needs_a_server(run_vacc, tmp_path):
     r = run_vacc("drive", "--controller", "acc", "--seat", "1", "--log", str(tmp_path / "x.csv"))
     assert r.returncode == 2 and "--seat needs --server" in r.stderr
+
+
+def test_a_reset_mid_episode_abandons_it_for_every_seat(spawn):
+    from agent_client.errors import SessionError
+
+    with spawn("--port", "0", "--followers", "2") as (_, addr), Session(addr, seat=0) as s0, Session(addr, seat=1) as s1:
+        both = threading.Thread(target=s1.reset, kwargs={"trajectory": "test-1", "duration": 5.0})
+        both.start()
+        s0.reset(trajectory="test-1", duration=5.0)
+        both.join()
+        stepped = threading.Thread(target=s1.step, args=(0.0,))
+        stepped.start()
+        s0.step(0.0)
+        stepped.join()
+        again = threading.Thread(target=lambda: s0.reset(trajectory="test-2", duration=5.0))
+        again.start()  # seat 0 starts over while seat 1 is mid-episode
+        time.sleep(0.3)
+        with pytest.raises(SessionError, match="EPISODE_OVER: seat 0 asked for a new episode at frame 1"):
+            s1.step(0.0)
+        first = s1.reset(trajectory="test-2", duration=5.0)
+        again.join()
+        assert first["frame"] == 0 and s1.episode == 1 and s0.episode == 1

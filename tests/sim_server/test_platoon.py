@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from agent_client.controllers.acc import AccController
+from protocol.constants import MAX_FOLLOWERS
 from sim_server.errors import InitialConditionError
-from sim_server.platoon import MAX_FOLLOWERS, PlatoonWorld, follower_seed
+from sim_server.platoon import PlatoonWorld, follower_seed
 from sim_server.render import CameraConfig, Renderer
 from sim_server.world import World, WorldConfig, WorldState
 from vacc.platoon_sim import simulate_platoon
