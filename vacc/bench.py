@@ -126,6 +126,45 @@ def lockstep_key(steps: int, reps: int) -> dict[str, Any]:
     return {"plain": _reps(rates["plain"]), "keyed": _reps(rates["keyed"]), "ratio": keyed / plain}
 
 
+def _seat_client(addr: tuple[str, int], seat: int, steps: int, episodes: int, out: Any) -> None:
+    """One seat's client in its own process: ``episodes`` platoon episodes of ``steps``
+    frames, a gap-keeping law; puts (frames, start, end) [s, monotonic] of each episode."""
+    with Session(addr, seat=seat, client_name="vacc-bench-seat") as s:
+        for ep in range(episodes):
+            obs = s.reset(seed=ep, trajectory="test-1", duration=steps * float(s.welcome["control_period"]))  # type: ignore[index]
+            t0 = time.monotonic()
+            while not (obs["terminated"] or obs["truncated"]):  # the episode's end: no seat leaves one running
+                u = 0.02 * (obs["gap"] - 40.0) + 0.2 * (obs["v_lead"] - obs["v_host"])
+                obs = s.step(max(-1.0, min(1.0, u)))
+            out.put((obs["frame"], t0, time.monotonic()))
+
+
+def platoon_lockstep(steps: int, reps: int, followers: int = 10) -> dict[str, Any]:
+    """Lockstep frames/s, and steps/s per simulated car, of a platoon server with
+    ``followers`` seats and with one, each seat's client its own process, no images;
+    repetitions interleaved in one run (the first a warm-up)."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    per_car: dict[int, list[float]] = {1: [], followers: []}
+    with contextlib.ExitStack() as stack:
+        servers = {n: stack.enter_context(local_server("--followers", str(n))) for n in per_car}
+        for rep in range(reps + 1):
+            for n, addr in servers.items():
+                out = ctx.Queue()
+                procs = [ctx.Process(target=_seat_client, args=(addr, i, steps, 1, out), daemon=True) for i in range(n)]
+                for p in procs:
+                    p.start()
+                spans = [out.get(timeout=120) for _ in procs]
+                for p in procs:
+                    p.join(30)
+                if rep:
+                    frames_per_s = spans[0][0] / (max(e for _, _, e in spans) - min(t for _, t, _ in spans))
+                    per_car[n].append(frames_per_s * n)
+    one, many = statistics.median(per_car[1]), statistics.median(per_car[followers])
+    return {"followers": followers, "one": _reps(per_car[1]), "many": _reps(per_car[followers]), "ratio": many / one}
+
+
 def reset_flood(host: str, port: int, sockets: int, seconds: float) -> None:
     """Send valid maximum-size resets (two full float-64 traces, 2.36 MB, a stranger's
     token) from ``sockets`` sockets in turn for ``seconds``: the decode-budget attack.
@@ -440,6 +479,7 @@ def run_bench(size: str) -> dict[str, Any]:
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         rows["lockstep_key"] = lockstep_key(steps, reps)
         rows["flood_rtt"] = flood_rtt(z.flood_samples)
+        rows["platoon_lockstep"] = platoon_lockstep(min(steps, 2000), reps)
         bar.update(1)
         rows["render_rgb400"] = render_time(z.renders)
         rows["render_gray200"] = render_time(z.renders, (200, 200), gray=True)
@@ -526,6 +566,10 @@ def format_table(result: dict[str, Any]) -> str:
     if fl is not None:
         label = f"heartbeat, {fl['sockets']}-socket reset flood"
         lines.append(f"{label:34} {fl['flood_ms']['median']:>9.3f} ms {fl['ratio']:>21.2f}x  vs {fl['idle_ms']['median']:.3f} ms idle (<= 2x); p99 {fl['flood_ms']['p99']:.1f} ms")
+    pl = f.get("platoon_lockstep")  # absent from the figures of a bench before it
+    if pl is not None:
+        label = f"platoon of {pl['followers']}, no image, per car"
+        lines.append(f"{label:34} {pl['many']['median']:>9.0f} /s {pl['ratio']:>21.2f}x  vs {pl['one']['median']:.0f}/s with one follower (>= 0.6x)")
     r = f["agent_env"]["steps_per_s"]
     ratio = f["agent_env"].get("x_highway_env")
     lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))

@@ -30,7 +30,7 @@ def test_smoke_bench_reports_every_figure(tmp_path):
     data = json.loads(out.read_text())
     assert {"date", "cpu", "cores", "versions"} <= set(data["header"]) and data["header"]["size"] == "smoke"
     figures = data["figures"]
-    for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "lockstep_key", "flood_rtt", "render_rgb400", "agent_env", "decision_latency", "replay_sample", "update_cost", "ddqn_training", "ddqn_training_parallel", "replay", "training_peak_rss"):
+    for key in ("udp_echo", "lockstep_no_image", "lockstep_rgb400", "lockstep_gray200", "lockstep_key", "flood_rtt", "platoon_lockstep", "render_rgb400", "agent_env", "decision_latency", "replay_sample", "update_cost", "ddqn_training", "ddqn_training_parallel", "replay", "training_peak_rss"):
         assert key in figures, key
     # each training row measures the schedule its label names (the serial row once ran the parallel one)
     assert (figures["ddqn_training"]["schedule"], figures["ddqn_training_parallel"]["schedule"]) == ("serial", "parallel")
