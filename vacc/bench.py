@@ -539,6 +539,22 @@ def run_bench(size: str) -> dict[str, Any]:
     }
 
 
+def _session_lines(f: dict[str, Any]) -> list[str]:
+    """The table's lines of the keyed, flooded and platoon sessions (a bench before a row has none of it)."""
+    k = f["lockstep_key"]
+    cost = 1e6 * (1 / k["keyed"]["median"] - 1 / k["plain"]["median"])  # [us] per step
+    lines = [f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step (>= 0.85x)"]
+    fl = f.get("flood_rtt")
+    if fl is not None:
+        label = f"heartbeat, {fl['sockets']}-socket reset flood"
+        lines.append(f"{label:34} {fl['flood_ms']['median']:>9.3f} ms {fl['ratio']:>21.2f}x  vs {fl['idle_ms']['median']:.3f} ms idle (<= 2x); p99 {fl['flood_ms']['p99']:.1f} ms")
+    pl = f.get("platoon_lockstep")
+    if pl is not None:
+        label = f"platoon of {pl['followers']}, no image, per car"
+        lines.append(f"{label:34} {pl['many']['median']:>9.0f} /s {pl['ratio']:>21.2f}x  vs {pl['one']['median']:.0f}/s with one follower (>= 0.6x)")
+    return lines
+
+
 def format_table(result: dict[str, Any]) -> str:
     f = result["figures"]
     h = result["header"]
@@ -559,17 +575,7 @@ def format_table(result: dict[str, Any]) -> str:
     rate("lockstep_no_image", "lockstep, no image", f">= 5000/s ({f['lockstep_no_image']['pct_of_echo']:.0f}% of echo)")
     rate("lockstep_rgb400", "lockstep, 400x400 RGB (480 KB)", "")
     rate("lockstep_gray200", "lockstep, 200x200 gray (agent)", ">= 1000/s")
-    k = f["lockstep_key"]
-    cost = 1e6 * (1 / k["keyed"]["median"] - 1 / k["plain"]["median"])  # [us] per step
-    lines.append(f"{'lockstep with --key-file':34} {k['keyed']['median']:>9.0f} /s {k['ratio']:>21.2f}x  vs {k['plain']['median']:.0f}/s without key: {cost:+.0f} us a step (>= 0.85x)")
-    fl = f.get("flood_rtt")  # absent from the figures of a bench before it
-    if fl is not None:
-        label = f"heartbeat, {fl['sockets']}-socket reset flood"
-        lines.append(f"{label:34} {fl['flood_ms']['median']:>9.3f} ms {fl['ratio']:>21.2f}x  vs {fl['idle_ms']['median']:.3f} ms idle (<= 2x); p99 {fl['flood_ms']['p99']:.1f} ms")
-    pl = f.get("platoon_lockstep")  # absent from the figures of a bench before it
-    if pl is not None:
-        label = f"platoon of {pl['followers']}, no image, per car"
-        lines.append(f"{label:34} {pl['many']['median']:>9.0f} /s {pl['ratio']:>21.2f}x  vs {pl['one']['median']:.0f}/s with one follower (>= 0.6x)")
+    lines += _session_lines(f)
     r = f["agent_env"]["steps_per_s"]
     ratio = f["agent_env"].get("x_highway_env")
     lines.append(f"{'agent env (camera, preprocess, stack)':34} {r['median']:>9.0f} /s {r['min']:>10.0f}..{r['max']:<10.0f}  >= 2x peer" + (f" ({ratio:.1f}x)" if ratio else ""))
