@@ -416,13 +416,14 @@ class Sizes(NamedTuple):
     learning_starts: int
     rss_steps: int
     flood_samples: int  # heartbeats timed idle and under the reset flood
+    platoon: int = 10  # seats of the platoon row, each its own client process
 
 
 SIZES = {
     "full": Sizes("full", 3000, 5, 2000, 20, 2000, 100_000, 30, 6000, 1000, 50_000, 400),
     "quick": Sizes("quick", 500, 3, 500, 5, 300, 20_000, 10, 600, 200, 1500, 100),
     # every row once, as small as it runs: the tests' check that each figure is made (its numbers mean little)
-    "smoke": Sizes("smoke", 100, 1, 50, 2, 100, 2_000, 2, 120, 40, 200, 50),
+    "smoke": Sizes("smoke", 100, 1, 50, 2, 100, 2_000, 2, 120, 40, 200, 50, platoon=3),
 }
 
 
@@ -479,7 +480,7 @@ def run_bench(size: str) -> dict[str, Any]:
         rows["lockstep_gray200"] = lockstep(max(100, steps // 5), reps, "gray", (200, 200))
         rows["lockstep_key"] = lockstep_key(steps, reps)
         rows["flood_rtt"] = flood_rtt(z.flood_samples)
-        rows["platoon_lockstep"] = platoon_lockstep(min(steps, 2000), reps)
+        rows["platoon_lockstep"] = platoon_lockstep(min(steps, 2000), reps, z.platoon)
         bar.update(1)
         rows["render_rgb400"] = render_time(z.renders)
         rows["render_gray200"] = render_time(z.renders, (200, 200), gray=True)
