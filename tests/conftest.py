@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import ast
 import functools
-import json
 import os
 import re
 import subprocess
@@ -114,46 +113,10 @@ def _is_integration(item: pytest.Item) -> bool:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         item.add_marker(pytest.mark.integration if _is_integration(item) else pytest.mark.unit)
-    # The modules that start processes or hold slow tests run first, longest first (their
-    # measured seconds, MODULE_SECONDS), the quick in-process ones last: xdist deals the
-    # first quarter of the tests round-robin, so longest-first balances the workers' heavy
-    # shares, and the quick tests then fill in until they finish together.
+    # The modules that start processes or hold slow tests run first, the quick in-process ones
+    # last: the workers then finish together instead of one running a long test alone at the end.
     heavy = {item.module for item in items if item.get_closest_marker("integration") or item.get_closest_marker("slow")}
-    seconds = _module_seconds()
-    items.sort(key=lambda item: (item.module not in heavy, -seconds.get(_module_key(item), DEFAULT_MODULE_SECONDS)))
-
-
-MODULE_SECONDS = TESTS / "module_seconds.json"  # seconds per test module, from `pytest --module-seconds-out`
-DEFAULT_MODULE_SECONDS = 10.0  # a module not measured yet: among the middling ones
-
-
-def _module_key(item: pytest.Item) -> str:
-    return item.nodeid.split("::", 1)[0]
-
-
-def _module_seconds() -> dict[str, float]:
-    try:
-        return {k: float(v) for k, v in json.loads(MODULE_SECONDS.read_text()).items()}
-    except (OSError, ValueError, AttributeError):
-        return {}  # only the order depends on it
-
-
-def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption("--module-seconds-out", default=None, metavar="PATH", help="Write each test module's seconds (setup, call, teardown) as JSON.")
-
-
-_SPENT: dict[str, float] = {}
-
-
-def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    module = report.nodeid.split("::", 1)[0]
-    _SPENT[module] = _SPENT.get(module, 0.0) + report.duration
-
-
-def pytest_sessionfinish(session: pytest.Session) -> None:
-    out = session.config.getoption("--module-seconds-out")
-    if out and not hasattr(session.config, "workerinput"):  # the controller sees every worker's reports
-        Path(out).write_text(json.dumps({k: round(v, 1) for k, v in sorted(_SPENT.items(), key=lambda kv: -kv[1])}, indent=1) + "\n")
+    items.sort(key=lambda item: item.module not in heavy)
 
 
 @pytest.fixture(autouse=True)
