@@ -84,6 +84,8 @@ def serve(
     if click.get_current_context().get_parameter_source("log_level") is click.ParameterSource.COMMANDLINE:
         log.setLevel(log_level.upper())  # this command's own option wins over the group's
     key = key_option(key_file)
+    if realtime and followers:
+        raise click.UsageError("--realtime paces one car to a human's wall clock; a platoon (--followers) is not paced")
     if not is_loopback(host):
         if not allow_remote:
             raise click.UsageError(f"--host {host} is not a loopback address; pass --allow-remote to bind it")

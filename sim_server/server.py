@@ -387,10 +387,9 @@ class SimServer:
             detail = f"server speaks versions {self._versions()}; hello says {msg['version']} in a version {version} datagram"
             self._send_error(addr, ErrorCode.BAD_VERSION, detail, limit=limit)
             return
-        seat, problem = self._free_seat(msg.get("seat", -1))
-        if problem:
-            code = ErrorCode.BUSY if problem.startswith(("the world", "seat", "every")) else ErrorCode.BAD_MESSAGE
-            self._send_error(addr, code, problem, limit=limit, version=version)
+        seat, refusal = self._free_seat(msg.get("seat", -1))
+        if refusal is not None:
+            self._send_error(addr, *refusal, limit=limit, version=version)
             return
         fmt, width, height = msg["image_format"], msg["image_width"], msg["image_height"]
         lo, hi = m.MIN_IMAGE_SIDE, m.MAX_IMAGE_SIDE
@@ -447,23 +446,24 @@ class SimServer:
             self.stats["handshakes"] += 1
         self.endpoint.send_datagrams(datagrams, addr)
 
-    def _free_seat(self, wanted: int) -> tuple[int, str]:
-        """The seat a hello asking for ``wanted`` (-1: any) takes, or why it takes none."""
+    def _free_seat(self, wanted: int) -> tuple[int, tuple[ErrorCode, str] | None]:
+        """The seat a hello asking for ``wanted`` (-1: any) takes, or the error that refuses it:
+        BUSY while it (or every seat) is taken, BAD_MESSAGE for a seat there is not."""
         n = len(self.seats)
         claimed = {p.seat for p in self.pending.values()}
         if self.platoon is None:
             if wanted not in (-1, 0):
-                return 0, f"this server drives one car: there is no seat {wanted} (start it with --followers for a platoon)"
+                return 0, (ErrorCode.BAD_MESSAGE, f"this server drives one car: there is no seat {wanted} (start it with --followers for a platoon)")
             # Who holds the world is nobody else's business.
-            return 0, "the world is in use by another session; retry later" if self.seats[0] is not None else ""
+            return 0, (ErrorCode.BUSY, "the world is in use by another session; retry later") if self.seats[0] is not None else None
         if wanted == -1:
             free = [i for i in range(n) if self.seats[i] is None and i not in claimed]
-            return (free[0], "") if free else (0, f"every one of the {n} seats is taken; retry later")
+            return (free[0], None) if free else (0, (ErrorCode.BUSY, f"every one of the {n} seats is taken; retry later"))
         if not 0 <= wanted < n:
-            return 0, f"seat {wanted} outside 0..{n - 1} (-1: any free seat)"
+            return 0, (ErrorCode.BAD_MESSAGE, f"seat {wanted} outside 0..{n - 1} (-1: any free seat)")
         if self.seats[wanted] is not None or wanted in claimed:
-            return wanted, f"seat {wanted} is taken; retry later"
-        return wanted, ""
+            return wanted, (ErrorCode.BUSY, f"seat {wanted} is taken; retry later")
+        return wanted, None
 
     def _send_to(self, s: _Session, msg: dict[str, Any]) -> list[bytes]:
         """Send a message to session ``s``, at its version and datagram size, sealed in its channel."""

@@ -86,11 +86,13 @@ def test_a_stalled_seat_ends_every_session_naming_it(spawn):
 
 def test_seat_requests_that_cannot_be_met_are_refused_in_one_line(spawn):
     with spawn("--port", "0", "--followers", "2") as (_, addr):
-        with pytest.raises(FatalSessionError, match="seat 5 outside 0..1"):
-            Session(addr, seat=5, give_up=1.0).open()
+        refused = time.monotonic()
+        with pytest.raises(FatalSessionError, match="BAD_MESSAGE: seat 5 outside 0..1"):
+            Session(addr, seat=5, give_up=3.0).open()
+        assert time.monotonic() - refused < 1.0  # refused at once, not retried as a busy seat
         with Session(addr, seat=1, give_up=1.0) as held:
             assert held.welcome["seat"] == 1 and held.welcome["seats"] == 2
-            with pytest.raises(FatalSessionError, match="seat 1 is taken"):
+            with pytest.raises(FatalSessionError, match="BUSY: seat 1 is taken"):
                 Session(addr, seat=1, give_up=0.5).open()
             with Session(addr, give_up=1.0) as any_seat:  # no seat asked: the first free one
                 assert any_seat.seat == 0
