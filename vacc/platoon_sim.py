@@ -14,6 +14,7 @@ and to calibrate the ACC to real platoons (:mod:`vacc.acc_calibration`).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,9 +27,24 @@ from protocol.scenarios import DEFAULT_SET_SPEED
 from sim_server.scene import CAR_LENGTH
 from sim_server.vehicle import advance_speed
 
-__all__ = ["PlatoonRun", "simulate_platoon", "lead_profile"]
+__all__ = ["PlatoonRun", "simulate_platoon", "lead_profile", "Lagged"]
 
 Policy = Callable[[dict[str, Any]], float]  # observation -> force u in [-1, 1]
+
+
+class Lagged:
+    """A controller that sees the car ahead (``gap``, ``v_lead``, ``a_lead``) ``steps``
+    control steps late and itself now: a bound on what a camera policy, whose view of the
+    lead's motion lags, can do with the same law."""
+
+    def __init__(self, policy: Policy, steps: int):
+        self.policy, self.steps = policy, steps
+        self._seen: deque[dict[str, Any]] = deque(maxlen=steps + 1)
+        self.reference_gap = getattr(policy, "reference_gap", None)
+
+    def __call__(self, obs: dict[str, Any]) -> float:
+        self._seen.append({k: obs[k] for k in ("gap", "v_lead", "a_lead") if k in obs})
+        return float(self.policy({**obs, **self._seen[0]}))
 
 
 @dataclass(frozen=True)

@@ -83,6 +83,9 @@ _CALMER = Teacher("acc-55-calmer", "the gentle law with beta 0.25, gamma 1.5", "
 _ECO = Teacher("eco", "ACC law on the eco reward's desired gap, beta 0.1, gamma 0.3", "eco", 0.1, 0.3)
 _ECO_MID = Teacher("eco-mid", "the eco law with beta 0.125", "eco", 0.125, 0.3)
 _ECO_FIRM = Teacher("eco-firm", "the eco law with beta 0.15, opening a short gap faster", "eco", 0.15, 0.3)
+# A 10-car platoon of it stays string-stable behind every OpenACC lead when it sees the car
+# ahead 0.5 s late, as a camera does; eco-firm's does not (docs/platoons.md).
+_PLATOON = Teacher("platoon", "the eco gap with beta 0.2, gamma 0.8: string-stable seeing the car ahead 0.5 s late", "eco", 0.2, 0.8)
 
 REGISTRY: dict[str, Teacher] = {t.name: t for t in (
     Teacher("none", "no teacher: Double DQN on the reward", gap=None),
@@ -96,6 +99,7 @@ REGISTRY: dict[str, Teacher] = {t.name: t for t in (
     _ECO, _with_margin(_ECO),
     _ECO_MID, _with_margin(_ECO_MID),
     _ECO_FIRM, _with_margin(_ECO_FIRM),
+    _PLATOON,
 )}  # fmt: skip
 
 TEACHERS = tuple(REGISTRY)  # who labels the states in teacher (DAgger) runs

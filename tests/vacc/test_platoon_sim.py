@@ -92,3 +92,23 @@ def test_lead_profile_refuses_bad_traces() -> None:
         lead_profile(np.array([0.0, 0.0]), np.array([1.0, 1.0]), 1.0)
     with pytest.raises(ValueError, match=">= 0"):
         lead_profile(np.array([0.0, 1.0]), np.array([1.0, -1.0]), 1.0)
+
+
+def test_the_platoon_teacher_stays_string_stable_seeing_half_a_second_late_where_eco_firm_does_not():
+    from agent_client.rl.teachers import teacher_law
+    from energy.openacc import read_openacc
+    from energy.string_stability import amplification
+    from vacc.platoon_sim import Lagged
+
+    run = read_openacc("short_setting_dynamic_part10.csv")  # a lead that changes speed
+    ok = np.isfinite(run.speed[0])
+    t, v = run.t[ok], run.speed[0, ok]
+
+    def ratio(teacher: str, steps: int) -> float:
+        laws = [Lagged(teacher_law(teacher), steps) for _ in range(10)]
+        sim = simulate_platoon(lead_profile(t, v, t[-1] - t[0]), laws, [teacher_law(teacher).reference_gap(float(v[0]))] * 10)
+        assert sim.collided is None
+        return amplification(sim.t, sim.v).lead_to_last.speed_rms
+
+    assert ratio("platoon", 5) < 0.8  # 10 cars, each seeing the car ahead 0.5 s late
+    assert ratio("eco-firm", 0) < 1.0 < ratio("eco-firm", 5)  # string-stable only while it sees at once
