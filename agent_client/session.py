@@ -314,7 +314,7 @@ class Session:
             error_match=lambda e: e["frame"] in (frame, None) and e["episode"] in (episode, None),
             extra=self._waits("seat_timeout"),
             # a platoon server sends the frame acted on again while it awaits this step: it was lost
-            nudge=(lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame) if self._waits("seats") else None,
+            nudge=(lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame) if "seats" in (self.welcome or {}) else None,
         )
         self.frame = frame + 1
         return obs

@@ -74,10 +74,6 @@ class PlatoonLockstep:
         self.abandoned = "no platoon episode is running"  # why a step finds none
 
     @property
-    def followers(self) -> int:
-        return self.world.followers
-
-    @property
     def running(self) -> bool:
         """An episode has started and is not over."""
         return self.frame is not None and not self.world.over
