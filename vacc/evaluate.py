@@ -29,7 +29,12 @@ from agent_client.drive import COLD_START_HELP
 from agent_client.launcher import DEFAULT_ROAD, Road
 from agent_client.outputs import writable_dir_option
 from energy import SCENARIO_VEHICLES, SETTLE_S
-from protocol.constants import SUN_ELEVATION, TRAFFIC_PER_LANE, TRAFFIC_PER_LANE_RANGE
+from protocol.constants import (
+    MAX_FOLLOWERS,
+    SUN_ELEVATION,
+    TRAFFIC_PER_LANE,
+    TRAFFIC_PER_LANE_RANGE,
+)
 from protocol.options import SunElevation
 from protocol.scenarios import LEAD_SCENARIOS, SCENARIOS
 from vacc import figures, stats
@@ -69,7 +74,7 @@ OPTIONAL = ("ddqn-eco",)  # beyond the paper: in the default methods only where 
 HDM_LABEL = "Human Driver Model (Treiber et al. 2006)"
 DEFAULT_VEHICLE = SCENARIO_VEHICLES
 
-SUITES = ("paper", "safety", "random", "openacc")
+SUITES = ("paper", "safety", "random", "openacc", "string")
 SAFETY_SEEDS = "0-9"
 """The safety suite's seeds when neither --seed nor --seeds is given (the paper suite's: 0)."""
 SUITE_SEEDS = {"paper": "0", "safety": SAFETY_SEEDS, "random": RANDOM_SEEDS}
@@ -349,7 +354,7 @@ def random_suite(
     click.echo(f"Wrote {out}/summary.json, random.md and logs/")
 
 
-def openacc_suite(out: Path, methods: str | None, model_files: tuple[str, ...] = ()) -> None:
+def openacc_suite(out: Path, methods: str | None, model_files: tuple[str, ...] = (), followers: int | None = None) -> None:
     """Platoons of the laws (and of each --model, from its camera) behind the nine OpenACC
     leads, beside the real platoons (:mod:`vacc.openacc_suite`): write openacc.md and
     openacc.json and print the table.
@@ -365,20 +370,48 @@ def openacc_suite(out: Path, methods: str | None, model_files: tuple[str, ...] =
     models = parse_models(model_files, None)  # each model drives its own vehicle
     if models.keys() & set(kinds):
         raise click.BadParameter(f"--model names {sorted(models.keys() & set(kinds))}, which are platoon kinds", param_hint="--model")
-    click.echo(run_openacc(out, platoons=kinds, models=models), nl=False)
+    click.echo(run_openacc(out, platoons=kinds, models=models, followers=followers), nl=False)
     click.echo(f"Wrote {out}/openacc.md and openacc.json")
 
 
-def _not_for_openacc(ctx: click.Context) -> None:
-    """Refuse the options that the openacc suite would ignore (its leads are the nine files).
+def string_suite(out: Path, methods: str | None, model_files: tuple[str, ...], followers: int | None, seeds: str | None) -> None:
+    """Each law's and --model's speed-to-speed gain behind sinusoidal leads and its platoons
+    behind held-out random leads (:mod:`vacc.string_suite`): write string.md and string.json
+    and print the tables.
+
+    Raises:
+        click.BadParameter: --methods names no law, or a bad --model or --seeds.
+    """
+    from vacc.string_suite import FOLLOWERS, LAWS, LEAD_SEEDS, law_maker, model_maker, run_string
+
+    laws = ["acc"] if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
+    if (not laws and not model_files) or any(k not in LAWS for k in laws):
+        raise click.BadParameter(f"the string suite drives the laws {', '.join(LAWS)}, got {methods!r}", param_hint="--methods")
+    models = parse_models(model_files, None)
+    if models.keys() & set(laws):
+        raise click.BadParameter(f"--model names {sorted(models.keys() & set(laws))}, which are laws", param_hint="--model")
+    drivers = {name: law_maker(name) for name in laws} | {name: model_maker(path) for name, path in models.items()}
+    lead_seeds = LEAD_SEEDS if seeds is None else parse_seeds(seeds)
+    n = FOLLOWERS if followers is None else followers
+    click.echo(run_string(out, drivers, followers=n, seeds=lead_seeds), nl=False)
+    click.echo(f"Wrote {out}/string.md and string.json")
+
+
+_PLATOON_SUITE_OPTIONS = {"openacc": ("out", "methods", "suite", "model_files", "followers"),
+                          "string": ("out", "methods", "suite", "model_files", "followers", "seeds")}  # fmt: skip
+
+
+def _not_for_platoons(ctx: click.Context, suite: str) -> None:
+    """Refuse the options that the openacc or string suite would ignore.
 
     Raises:
         click.BadParameter: one line naming the option.
     """
+    takes = _PLATOON_SUITE_OPTIONS[suite]
     for param in ctx.command.params:
-        if param.name not in ("out", "methods", "suite", "model_files") and ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE:  # type: ignore[arg-type]
-            raise click.BadParameter("the openacc suite drives the nine OpenACC leads; it takes --out, --methods and --model only",
-                                     param_hint=param.opts[0] if param.opts else param.name)  # fmt: skip
+        if param.name not in takes and ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE:  # type: ignore[arg-type]
+            names = ", ".join("--" + t.replace("model_files", "model").replace("_", "-") for t in takes if t != "suite")
+            raise click.BadParameter(f"the {suite} suite takes {names} only", param_hint=param.opts[0] if param.opts else param.name)
 
 
 def _paper_only(suite: str, given: dict[str, Any]) -> None:
@@ -417,8 +450,9 @@ def _paper_only(suite: str, given: dict[str, Any]) -> None:
 @click.option("--lead-scenarios", default=None, metavar="NAMES", help="With --suite safety: only these lead scenarios, comma-separated. Default: every one (" + ", ".join(LEAD_SCENARIOS) + ").")
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
 @click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
-@click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md). openacc: platoons of the laws (--methods acc,hdm,mixed) behind the nine real OpenACC leads, beside the real platoons' amplification (openacc.md).")
-@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper, or openacc: a platoon of it). A checkpoint trained for the other scenario is refused.")
+@click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md). openacc: platoons of the laws (--methods acc,hdm,mixed) behind the nine real OpenACC leads, beside the real platoons' amplification (openacc.md). string: each law's (--methods, default acc) and model's speed gain behind sinusoidal leads and its platoons behind held-out random leads (--seeds, default 7001-7003; string.md).")
+@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper, or openacc and string: a platoon of it). A checkpoint trained for the other scenario is refused.")
+@click.option("--followers", default=None, type=click.IntRange(1, MAX_FOLLOWERS), help="Followers in each platoon of --suite openacc (default: the real platoon's length) and string (default: 10).")
 @click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
 @click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
 @click.option("--videos", is_flag=True, help="Write one video per run into OUT/videos (vacc video), linked from report.html (--suite paper).")
@@ -427,7 +461,7 @@ def evaluate(
     scenario: str, out: str, methods: str | None, models: str, human_files: tuple[str, ...], vehicle: str | None,
     duration: float | None, seeds: str | None, seed: int | None, jobs: int, settle: float, cold_start: bool,
     lead_scenarios: str | None, traffic: int, sun_elevation: tuple[float, float], suite: str, model_files: tuple[str, ...] = (),
-    include_early: bool = False, view: bool = False, videos: bool = False, no_figures: bool = False,
+    followers: int | None = None, include_early: bool = False, view: bool = False, videos: bool = False, no_figures: bool = False,
 ) -> dict[str, Any] | None:  # fmt: skip
     """Run every method on test-1..test-4 over UDP and write the paper's tables and figures
     (or, with --suite safety, drive every lead scenario and write a pass/fail table; with
@@ -436,9 +470,12 @@ def evaluate(
 
     Returns the combined metrics per method of the paper suite (see build_tables).
     """
-    if suite == "openacc":
-        _not_for_openacc(click.get_current_context())
-        openacc_suite(Path(out), methods, model_files)
+    if suite in _PLATOON_SUITE_OPTIONS:
+        _not_for_platoons(click.get_current_context(), suite)
+        if suite == "openacc":
+            openacc_suite(Path(out), methods, model_files, followers)
+        else:
+            string_suite(Path(out), methods, model_files, followers, seeds)
         return None
     seed_list = _seed_list(seed, seeds, suite)
     road = Road(traffic, sun_elevation)

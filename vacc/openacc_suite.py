@@ -82,29 +82,31 @@ def _lead(run: OpenAccRun) -> tuple[np.ndarray, np.ndarray]:
     return run.t[ok], run.speed[0, ok]
 
 
-def simulated_row(run: OpenAccRun, platoon: str) -> PlatoonRow:
-    """A ``platoon`` of the real one's length behind ``run``'s recorded lead, from equilibrium."""
+def simulated_row(run: OpenAccRun, platoon: str, followers: int | None = None) -> PlatoonRow:
+    """A ``platoon`` of the real one's length (or of ``followers``) behind ``run``'s recorded lead, from equilibrium."""
     t, v = _lead(run)
-    made = [PLATOONS[platoon](i) for i in range(1, run.n_cars)]
+    made = [PLATOONS[platoon](i) for i in range(1, 1 + (followers or run.n_cars - 1))]
     sim = simulate_platoon(lead_profile(t, v, t[-1] - t[0]), [c for c, _ in made], [gap(float(v[0])) for _, gap in made])
     return _row(run.name, platoon, sim.t, sim.v, sim.gaps, sim.collided is not None)
 
 
-def camera_row(run: OpenAccRun, name: str, checkpoint: str) -> PlatoonRow:
-    """A platoon of the real one's length behind ``run``'s recorded lead, every follower the
-    policy ``checkpoint`` driving from its camera (named ``name`` in the table)."""
+def camera_row(run: OpenAccRun, name: str, checkpoint: str, followers: int | None = None) -> PlatoonRow:
+    """A platoon of the real one's length (or of ``followers``) behind ``run``'s recorded lead,
+    every follower the policy ``checkpoint`` driving from its camera (named ``name`` in the table)."""
     from agent_client.controllers.ddqn import DDQNController  # torch: only for a learned platoon
 
     t, v = _lead(run)
-    controllers = [DDQNController.from_checkpoint(checkpoint) for _ in range(1, run.n_cars)]
+    controllers = [DDQNController.from_checkpoint(checkpoint) for _ in range(followers or run.n_cars - 1)]
     v0 = float(v[0])
     sim = drive_platoon(controllers, [controllers[0].cfg.scenario] * len(controllers), (t - t[0], v), [AccController().reference_gap(v0)] * len(controllers),
                         host_speed=v0)  # fmt: skip
     return _row(run.name, name, sim.t, sim.v, sim.gaps, sim.collided is not None)
 
 
-def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None) -> list[PlatoonRow]:
-    """The real platoon, each simulated kind and each learned model (name -> checkpoint), file by file.
+def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None,
+                 followers: int | None = None) -> list[PlatoonRow]:  # fmt: skip
+    """The real platoon, each simulated kind and each learned model (name -> checkpoint), file
+    by file; the simulated ones of the real one's length, or of ``followers``.
 
     Raises:
         energy.errors.DataError: a file that does not read.
@@ -113,8 +115,8 @@ def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] =
     for name in files:
         run = read_openacc(name)
         rows.append(_row(name, "real", run.t, run.speed, run.ivs, False))
-        rows += [simulated_row(run, kind) for kind in platoons]
-        rows += [camera_row(run, model, path) for model, path in (models or {}).items()]
+        rows += [simulated_row(run, kind, followers) for kind in platoons]
+        rows += [camera_row(run, model, path, followers) for model, path in (models or {}).items()]
     return rows
 
 
@@ -136,19 +138,21 @@ def openacc_table(rows: Sequence[PlatoonRow]) -> list[str]:
         "Lead-to-last amplification of speed deviation after the first fifth, RMS / peak "
         f"(a constant-speed lead, under {STILL_LEAD_MPS} m/s of deviation: the last car's own deviation).",
         "",
-        "| file | cars | lead dev [m/s] | " + " | ".join(kinds) + " | closest gap, simulated [m] |",
+        "| file | cars: real, simulated | lead dev [m/s] | " + " | ".join(kinds) + " | closest gap, simulated [m] |",
         "| --- | --- | --- | " + " | ".join("---" for _ in kinds) + " | --- |",
     ]
     for name, got in by_file.items():
         real = got["real"]
         closest = min((r.min_gap_m for k, r in got.items() if k != "real"), default=float("nan"))
-        lines.append(f"| {name} | {real.cars} | {real.lead_dev_rms:.3f} | " + " | ".join(_cell(got[k]) for k in kinds) + f" | {closest:.1f} |")
+        sim_cars = "+".join(str(c) for c in sorted({r.cars for k, r in got.items() if k != "real"}))
+        lines.append(f"| {name} | {real.cars}, {sim_cars} | {real.lead_dev_rms:.3f} | " + " | ".join(_cell(got[k]) for k in kinds) + f" | {closest:.1f} |")
     return lines
 
 
-def run_openacc(out: Path, files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None) -> str:
+def run_openacc(out: Path, files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] = tuple(PLATOONS), models: dict[str, str] | None = None,
+                followers: int | None = None) -> str:  # fmt: skip
     """Drive the suite; write ``out/openacc.md`` and ``out/openacc.json``; return the table."""
-    rows = openacc_rows(files, platoons, models)
+    rows = openacc_rows(files, platoons, models, followers)
     table = "\n".join(openacc_table(rows)) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "openacc.md").write_text("# Real ACC platoons (OpenACC) beside simulated ones\n\n" + table)

@@ -12,7 +12,7 @@ from agent_client.preprocess import preprocess
 from agent_client.rl.actor_critic import policy_of
 from agent_client.rl.checkpoint import load_policy
 from agent_client.rl.config import Config
-from agent_client.rl.network import Decision, QNetwork, ScaledFrames, batch_of_one
+from agent_client.rl.network import Decision, QNetwork, ScaledFrames
 from agent_client.stacker import FrameStacker
 
 __all__ = ["DDQNController"]
@@ -96,8 +96,7 @@ class DDQNController:
     def _with_heads(self, stacked: dict[str, Any]) -> tuple[torch.Tensor, tuple[float, ...]]:
         """The outputs ``[A]`` and the heads' estimates (:attr:`log_columns`: the gap [m], the
         closing speed [m/s]) for a stacked observation."""
-        with torch.inference_mode():
-            q, gap, closing = self.q.with_heads(*batch_of_one(self.q, stacked["frames"], stacked["speeds"], stacked.get("controls")))
+        q, gap, closing = self.policy.outputs(stacked["frames"], stacked["speeds"], stacked.get("controls"))  # a recurrent state steps on
         estimates = (None if gap is None else QNetwork.gap_estimate(gap), None if closing is None else QNetwork.closing_estimate(closing))
         return q[0], tuple(float(e[0]) for e in estimates if e is not None)
 

@@ -247,6 +247,10 @@ class ActorPolicy:
     def reset(self) -> None:
         """No state between decisions."""
 
+    def state(self) -> None:
+        """No recurrent state (:meth:`agent_client.rl.network.Policy.state`)."""
+        return None
+
     def fresh(self) -> ActorPolicy:
         return self
 

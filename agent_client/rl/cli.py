@@ -28,6 +28,7 @@ from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
 from agent_client.rl.config import (
     DECISIONS,
+    RECURRENT,
     RESUMABLE_CHANGES,
     SCHEDULES,
     SETTINGS,
@@ -47,7 +48,7 @@ REQUIRED = ("reward", "total_steps")
 ZERO_IS_NONE = ("episode_seconds", "eval_seconds")  # lengths where 0 means none; --crash-reward -1 stays -1
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
-    "teacher": TEACHERS, "decision": DECISIONS,
+    "teacher": TEACHERS, "decision": DECISIONS, "recurrent": RECURRENT,
 }  # fmt: skip
 
 

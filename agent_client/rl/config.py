@@ -31,13 +31,14 @@ from protocol.scenarios import (
 )
 
 __all__ = [
-    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
+    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
     "EnvironmentSettings", "DQNSettings", "NetworkSettings", "EvaluationSettings", "TeacherSettings", "AuxiliarySettings",
     "DecisionSettings", "StreamsSettings", "ActorCriticSettings",
 ]  # fmt: skip
 
 SCHEDULES = ("parallel", "serial")
-DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
+DECISIONS = ("argmax", "mean")
+RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)  # how the network's outputs become the force (agent_client.rl.network.Policy)
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -100,7 +101,7 @@ class EnvironmentSettings:
     """The reward, scenario, action and training episodes."""
 
     reward: str = "gap"
-    """"gap" (Table 1), "force" (gap and force terms) or "eco" (gap minus energy and jerk)."""
+    """"gap" (Table 1), "force" or "eco" (minus energy, jerk)."""
     scenario: str = "ice"
     """"ice" (eq. 7 lead trajectories) or "ev" (real traces)."""
     set_speed: float = DEFAULT_SET_SPEED
@@ -108,14 +109,13 @@ class EnvironmentSettings:
     eco_weights: tuple[float, ...] = ECO_WEIGHTS
     """Eco reward's weights: gap, energy, comfort, closing."""
     action: str = "levels"
-    """"levels" (21 forces), "steps" (force increments), "ramp" or "ramp-fine" (rate-limited
-    targets); "continuous": a ramped target force, learned by DrQ-v2."""
+    """21 "levels", force "steps", rate-limited "ramp"/"ramp-fine" targets or "continuous" (DrQ-v2)."""
     train_trajectories: tuple[str, ...] = ("random",)
     """Training leads, one drawn per episode: "random" or lead scenarios (repeat to weight)."""
     train_traffic: int = TRAFFIC_PER_LANE
     """Cars per side lane in training."""
     train_sun_elevation: tuple[float, ...] = SUN_ELEVATION
-    """[rad] LOW,HIGH range of the sun's height in training episodes."""
+    """[rad] LOW,HIGH of the sun's height in training."""
     crash_reward: float | None = None
     """Reward of a collision, in [-10, 0]; unset: the reward's own."""
     episode_seconds: float | None = 60.0
@@ -196,6 +196,12 @@ class NetworkSettings:
     """Units of the hidden layer."""
     zoom: int = 1
     """Camera window: 1, the paper's (halved); 2, full resolution."""
+    recurrent: str = "none"
+    """"gru": a GRU carries a state over the frames."""
+    burn_in: int = 8
+    """(gru) steps rebuilding a state."""
+    sequence_length: int = 16
+    """(gru) steps per sequence."""
 
     def __post_init__(self) -> None:
         check_network(self)
@@ -228,13 +234,13 @@ class TeacherSettings:
     teacher_policy: str | None = None
     """(--teacher policy) the teacher's checkpoint."""
     teacher_brake: float = 3.5
-    """[m/s^2] (teacher, ramp) the least deceleration labelled as the full brake."""
+    """[m/s^2] (teacher, ramp) least deceleration labelled full brake."""
     brake_weight: float = 1.0
     """(teacher) weight of full-brake labels."""
     teacher_lag: float = 0.0
     """[s] (teacher) lag of the law's view of the closing speed."""
     teacher_steps: int = 50_000
-    """(teacher) steps over which the teacher's share of driving falls to 0."""
+    """(teacher) steps over which its share of driving falls to 0."""
 
     def __post_init__(self) -> None:
         check_teacher(self)
@@ -298,7 +304,7 @@ class ActorCriticSettings:
     """DrQ-v2's noise, target rate, augmentation and warm start."""
 
     noise_start: float = 1.0
-    """(continuous) exploration noise std at step 0."""
+    """(continuous) noise std at step 0."""
     noise_end: float = 0.1
     """(continuous) that std after exploration_steps."""
     noise_clip: float = 0.3
@@ -308,7 +314,7 @@ class ActorCriticSettings:
     shift_pad: int = 4
     """(continuous) [px] largest random image shift (0: none)."""
     bc_steps: int = 0
-    """(continuous) steps cloning the --init-from DQN's decision into the actor."""
+    """(continuous) steps cloning --init-from into the actor."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -420,6 +426,11 @@ def check_network(cfg: NetworkSettings) -> None:
     _at_least(cfg, ("frame_stack", "stack_stride"), 1)
     if cfg.zoom not in ZOOMS:
         raise _bad("zoom", f"must be one of {ZOOMS}")
+    if cfg.recurrent not in RECURRENT:
+        raise _bad("recurrent", f"must be one of {RECURRENT}, got {cfg.recurrent!r}")
+    _at_least(cfg, ("burn_in",), 0)
+    if not cfg.burn_in < cfg.sequence_length:
+        raise _bad("sequence_length", f"must be longer than burn_in ({cfg.burn_in}) so that a sequence trains a step, got {cfg.sequence_length}")
 
 
 def check_evaluation(cfg: EvaluationSettings) -> None:
@@ -510,6 +521,22 @@ def check_across_sections(cfg: Config) -> None:
     if cfg.servers != 1 and (needs := single_stream_only(cfg)) is not None:
         raise ConfigError(*needs)
     check_continuous(cfg)
+    check_recurrent(cfg)
+
+
+def check_recurrent(cfg: Config) -> None:
+    """What the recurrent trunk does not do yet. Raises ConfigError."""
+    if cfg.recurrent == "none":
+        return
+    for field, used, what in (
+        ("action", is_continuous(cfg.action), "the actor-critic (a DQN or DAgger learner only)"),
+        ("n_step", cfg.n_step != 1, "n-step returns (one-step targets from the unrolled sequence)"),
+        ("servers", cfg.servers != 1, "the K-stream trainer"),
+        ("brake_margin", cfg.brake_margin > 0.0, "a brake margin"),
+        ("teacher", cfg.teacher == "policy", "a policy teacher (a law's labels only)"),
+    ):  # fmt: skip
+        if used:
+            raise _bad(field, f"is not for the recurrent trunk (recurrent {cfg.recurrent!r}): it has no {what}")
 
 
 def check_continuous(cfg: Config) -> None:

@@ -51,7 +51,7 @@ from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
 from agent_client.rl.losses import Forward, build_terms, imitation, td, weighted_sum
 from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
-from agent_client.rl.replay import ReplayMemory, ReplaySamples, StreamReplay
+from agent_client.rl.replay import ReplayMemory, ReplaySamples, SequenceSamples, StreamReplay
 from agent_client.rl.scalars import ScalarLog
 from agent_client.rl.stop import STOP
 from agent_client.rl.teachers import teacher_law
@@ -150,6 +150,20 @@ class PolicyTeacher:
         holds the student's force)."""
         d = self.policy(obs)
         return d, d.action if d.target is None else held.imitate(d.target, hard_brake)
+
+
+def _flat_transitions(seq: SequenceSamples, gamma: float) -> ReplaySamples:
+    """The trained steps of replayed sequences as one batch of one-step transitions, for the
+    loss terms (no frames: the recurrent update has unrolled them already)."""
+    keep = seq.train
+    none = torch.empty(0)
+    rewards = seq.rewards[keep]
+    return ReplaySamples(
+        indices=seq.indices, frames=none, speeds=seq.speeds[:, :-1][keep], controls=seq.controls[:, :-1][keep], actions=seq.actions[keep],
+        rewards=rewards, returns=rewards, discounts=torch.full_like(rewards, gamma), terminal_rewards=rewards,
+        terminated=seq.terminated[keep], truncated=seq.truncated[keep], next_frames=none, next_speeds=seq.speeds[:, 1:][keep],
+        next_controls=seq.controls[:, 1:][keep], gaps=seq.gaps[keep], next_gaps=seq.next_gaps[keep],
+    )  # fmt: skip
 
 
 class Learner:
@@ -351,7 +365,7 @@ class Learner:
 
     # ------------------------------------------------------------------ learning
 
-    def update(self, b: ReplaySamples, log_step: int | None = None) -> UpdateLosses | None:
+    def update(self, b: ReplaySamples | SequenceSamples, log_step: int | None = None) -> UpdateLosses | None:
         """One gradient step on a replay batch: the sum of :attr:`loss_terms`
         (:func:`~agent_client.rl.losses.weighted_sum`), clipped to ``cfg.max_grad_norm``.
 
@@ -360,11 +374,35 @@ class Learner:
         """
         if self.continuous:
             return self._update_actor_critic(b, log_step)
+        if isinstance(b, SequenceSamples):
+            return self._update_recurrent(b, log_step)
         dev = self.device
         frames, speeds, controls = b.frames.to(dev), b.speeds.to(dev), b.controls.to(dev)
         q_all, gap_raw, closing_raw = self.q.with_heads(frames, speeds, controls)  # [B, A], [B] or None each
         q_taken = q_all.gather(1, b.actions.to(dev)[:, None]).squeeze(1)  # [B]
         total, values = weighted_sum(self.loss_terms, Forward(b, dev, q_all, q_taken, gap_raw, closing_raw))
+        return self._step(total, values, q_taken, log_step)
+
+    def _update_recurrent(self, seq: SequenceSamples, log_step: int | None) -> UpdateLosses | None:
+        """One step on replayed sequences (R2D2): unroll the online and target networks from
+        each sequence's stored state; the loss terms read the steps past the burn-in."""
+        dev, cfg = self.device, self.cfg
+        frames, speeds, controls, states = seq.frames.to(dev), seq.speeds.to(dev), seq.controls.to(dev), seq.states.to(dev)
+        q_all, gap_all, closing_all, _ = self.q.unroll(frames, speeds, controls, states)  # type: ignore[attr-defined]  # [B, L + 1, A]
+        keep = seq.train.to(dev)  # [B, L]
+        next_q = None
+        if self.teacher is None:
+            with torch.no_grad():
+                target_all = self.target.unroll(frames, speeds, controls, states)[0]  # type: ignore[attr-defined]
+            next_q = (q_all[:, 1:][keep].detach(), target_all[:, 1:][keep])
+        q = q_all[:, :-1][keep]  # [N, A]
+        flat = _flat_transitions(seq, cfg.gamma)
+        q_taken = q.gather(1, flat.actions.to(dev)[:, None]).squeeze(1)
+        heads = [None if h is None else h[:, :-1][keep] for h in (gap_all, closing_all)]
+        total, values = weighted_sum(self.loss_terms, Forward(flat, dev, q, q_taken, heads[0], heads[1], next_q))
+        return self._step(total, values, q_taken, log_step)
+
+    def _step(self, total: torch.Tensor, values: list[torch.Tensor], q_taken: torch.Tensor, log_step: int | None) -> UpdateLosses | None:
         self.optimizer.zero_grad()
         total.backward()
         nn.utils.clip_grad_norm_(self.q.parameters(), self.cfg.max_grad_norm)
@@ -374,6 +412,12 @@ class Learner:
             return None
         others = {term.name: value.item() for term, value in zip(self.loss_terms[1:], values[1:], strict=True)}
         return UpdateLosses(values[0].item(), q_taken.mean().item(), others)
+
+    def _sample(self, memory: ReplayMemory | StreamReplay) -> ReplaySamples | SequenceSamples:
+        cfg = self.cfg
+        if cfg.recurrent != "none":
+            return memory.sample_sequences(cfg.batch_size, self.rng, cfg.sequence_length, cfg.burn_in)  # type: ignore[union-attr]
+        return memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
 
     def _update_actor_critic(self, b: ReplaySamples, log_step: int | None) -> UpdateLosses | None:
         """One DrQ-v2 step (:func:`agent_client.rl.actor_critic.update`), its noise at ``_std``."""
@@ -417,11 +461,11 @@ class Learner:
                     self.acting.load_state_dict(self.q.state_dict())
             self._std = ac.noise_std(cfg, step)
         if self._worker is None:
-            self._log_losses(self.update(memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma), log_step), log_step)
+            self._log_losses(self.update(self._sample(memory), log_step), log_step)
             return
         self.wait()
         self.acting.load_state_dict(self.q.state_dict())
-        batch = memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
+        batch = self._sample(memory)
         self._jobs.append(self._worker.submit(lambda: self._pending(self.update(batch, log_step), log_step)))
 
     def _pending(self, losses: UpdateLosses | None, step: int | None) -> None:

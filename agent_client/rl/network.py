@@ -24,7 +24,7 @@ from agent_client.stacker import stack_picks
 from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
-    "QNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
+    "QNetwork", "RecurrentQNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
     "GAP_HEAD_SCALE", "CLOSING_HEAD_SCALE", "batch_of_one", "scale_frames", "ScaledFrames",
 ]  # fmt: skip
 
@@ -64,6 +64,8 @@ class QNetwork(nn.Module):
     (``Config.aux_closing``) does the same for the closing speed (:meth:`with_heads`).
     """
 
+    recurrent = False  # RecurrentQNetwork: a state carried from step to step
+
     def __init__(
         self, frame_stack: int = 8, n_actions: int = N_ACTIONS, speed_scale: float = 30.0, n_controls: int = 0,
         gap_head: bool = False, closing_head: bool = False, conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256,
@@ -98,8 +100,9 @@ class QNetwork(nn.Module):
         from agent_client.actions import make_action_type
 
         actions = make_action_type(cfg.action)
-        return cls(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0, closing_head=cfg.aux_closing > 0.0,
-                   conv_channels=tuple(cfg.conv_channels), hidden=cfg.hidden)  # fmt: skip
+        kind = RecurrentQNetwork if getattr(cfg, "recurrent", "none") == "gru" else QNetwork
+        return kind(cfg.frame_stack, actions.n, cfg.speed_scale, actions.n_controls, gap_head=cfg.aux_gap > 0.0, closing_head=cfg.aux_closing > 0.0,
+                    conv_channels=tuple(cfg.conv_channels), hidden=cfg.hidden)  # fmt: skip
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """Q-values.
@@ -171,6 +174,64 @@ class QNetwork(nn.Module):
             z = torch.cat([x, v, c], dim=1)
         hidden = self._linears[0]
         return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
+
+
+class RecurrentQNetwork(QNetwork):
+    """:class:`QNetwork` with a GRU between its hidden layer and its outputs: the paper's third
+    item of future work, a recurrent network over the whole sequence of frames rather than a
+    fixed stack alone (R2D2, Kapturowski et al. 2019, with a GRU for an LSTM).
+
+    conv over the stack -> fc (hidden, ReLU) -> GRU (hidden) -> fc (actions), and the heads
+
+    The state ``[B, hidden]`` is carried from step to step (:meth:`step`) and starts at zero
+    with each episode; a replayed sequence is unrolled (:meth:`unroll`) from the state stored
+    with its first step. The layers it shares with :class:`QNetwork` keep their names, so a
+    frame-stack checkpoint's perception copies over (``init_from``). Called without a state
+    it refuses: a decision without the state would be silently another policy's.
+    """
+
+    recurrent = True
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        width = self._linears[0].out_features
+        self.gru = nn.GRU(width, width, batch_first=True)
+
+    @property
+    def state_size(self) -> int:
+        return self.gru.hidden_size
+
+    def initial_state(self, batch: int = 1) -> torch.Tensor:
+        """The state at an episode's start: zeros ``[batch, hidden]``."""
+        return torch.zeros(batch, self.gru.hidden_size, device=self.device)
+
+    def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
+        raise TypeError("a recurrent network decides from its state: use step() or unroll(), or drive it through Policy")
+
+    def with_heads(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        raise TypeError("a recurrent network decides from its state: use step() or unroll(), or drive it through Policy")
+
+    def step(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+        """One step of ``B`` observations (as :meth:`QNetwork.forward`'s) from ``state``
+        ``[B, hidden]``: the outputs ``[B, A]``, the heads' raw outputs ``[B]`` (or None) and the new state."""
+        x = self._hidden(frames, speeds, controls)  # [B, H]
+        out, h = self.gru(x[:, None], state[None])
+        return (*self._heads(out[:, 0]), h[0])
+
+    def unroll(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+        """``B`` sequences of ``L`` observations (frames ``[B, L, S, H, W]``, speeds ``[B, L, S]``,
+        controls ``[B, L, S, C]``) from ``state`` ``[B, hidden]``: outputs ``[B, L, A]``, the heads'
+        ``[B, L]`` (or None) and the final state."""
+        b, n = frames.shape[:2]
+        flat_controls = None if controls is None or not self.n_controls else controls.flatten(0, 1)
+        x = self._hidden(frames.flatten(0, 1), speeds.flatten(0, 1), flat_controls).view(b, n, -1)  # [B, L, H]
+        out, h = self.gru(x, state[None])
+        return (*self._heads(out), h[0])
+
+    def _heads(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        out = self._linears[1]
+        heads = [None if h is None else F.linear(z, h.weight, h.bias)[..., 0] for h in (self.gap_head, self.closing_head)]
+        return F.linear(z, out.weight, out.bias), heads[0], heads[1]
 
 
 def batch_of_one(q: QNetwork, frames: np.ndarray | torch.Tensor, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
@@ -303,6 +364,7 @@ class Policy:
         self.full_brake_confirm, self._full_streak = int(full_brake_confirm), 0  # decisions in a row with the full brake the argmax
         self._all_levels = tuple(float(x) for x in levels)
         self._levels = self._all_levels[:EMERGENCY_LEVEL] + self._all_levels[EMERGENCY_LEVEL + 1 :]
+        self._state: torch.Tensor | None = None  # a recurrent network's state; None: the episode's start (zeros)
 
     @classmethod
     def of(cls, q: QNetwork, cfg: Any) -> Policy:
@@ -312,8 +374,30 @@ class Policy:
                    cfg.decision_deadband, cfg.decision_smoothing, cfg.decision_brake_confirm, cfg.decision_full_brake_confirm)
 
     def reset(self) -> None:
-        """Start an episode: forget the decisions in a row at the brake share or the full brake."""
+        """Start an episode: forget the decisions in a row at the brake share or the full brake,
+        and a recurrent network's state."""
         self._share_streak = self._full_streak = 0
+        self._state = None
+
+    def state(self) -> np.ndarray | None:
+        """A recurrent network's state before the next observation ``[hidden]`` (float32,
+        a copy: what the replay memory stores with that observation); None for a frame stack."""
+        if not self.q.recurrent:
+            return None
+        if self._state is None:
+            return np.zeros(self.q.state_size, np.float32)  # type: ignore[attr-defined]
+        return self._state[0].detach().cpu().numpy().astype(np.float32, copy=True)
+
+    def outputs(self, frames: Any, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """The outputs ``[1, A]`` and the heads' raw outputs ``[1]`` (or None) for one stacked
+        observation; a recurrent network's state steps on."""
+        with torch.inference_mode():
+            inputs = batch_of_one(self.q, frames, speeds, controls)
+            if not self.q.recurrent:
+                return self.q.with_heads(*inputs)
+            state = self.q.initial_state(1) if self._state is None else self._state  # type: ignore[attr-defined]
+            q, gap, closing, self._state = self.q.step(*inputs, state)  # type: ignore[attr-defined]
+            return q, gap, closing
 
     def fresh(self) -> Policy:
         """A copy for one episode (the same network and rule, its own state)."""
@@ -323,6 +407,8 @@ class Policy:
 
     def __call__(self, obs: dict[str, Any]) -> Decision:
         """The decision for one stacked observation (frames, speeds and, if observed, controls)."""
+        if self.q.recurrent:
+            return self.decide(self.outputs(obs["frames"], obs["speeds"], obs.get("controls"))[0][0], obs.get("controls"))
         if self.decision == "argmax":
             return Decision(greedy_action(self.q, obs["frames"], obs["speeds"], obs.get("controls")))
         with torch.inference_mode():

@@ -18,7 +18,7 @@ import torch
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
 
-__all__ = ["ReplayMemory", "ReplaySamples", "StreamReplay"]
+__all__ = ["ReplayMemory", "ReplaySamples", "SequenceSamples", "StreamReplay"]
 
 
 class ReplaySamples(NamedTuple):
@@ -40,6 +40,31 @@ class ReplaySamples(NamedTuple):
     next_controls: torch.Tensor  # [B, S, C] float32
     gaps: torch.Tensor  # [B] float32 [m], the first observations' gaps (NaN: a memory without them)
     next_gaps: torch.Tensor  # [B] float32 [m], the gaps one step on (the same episode's next observation)
+
+
+class SequenceSamples(NamedTuple):
+    """A batch of B replayed sequences of L transitions for a recurrent network (CPU tensors).
+
+    Step k of sequence b is the transition from slot ``indices[b] + k``; ``frames[:, k + 1]``
+    is its next observation. A sequence stops at its episode's end: ``mask`` is False from
+    there on (those steps repeat the last observation). ``train`` marks the steps whose loss
+    counts: past the burn-in, or every step of a sequence that starts its episode (its
+    stored state, zeros, is then exact).
+    """
+
+    indices: np.ndarray  # [B] absolute slots of the first observations
+    states: torch.Tensor  # [B, hidden] float32, the acting network's state before the first observation
+    frames: torch.Tensor  # [B, L + 1, S, H, W] uint8
+    speeds: torch.Tensor  # [B, L + 1, S] float32 [m/s]
+    controls: torch.Tensor  # [B, L + 1, S, C] float32
+    actions: torch.Tensor  # [B, L] int64
+    rewards: torch.Tensor  # [B, L] float32
+    terminated: torch.Tensor  # [B, L] bool
+    truncated: torch.Tensor  # [B, L] bool
+    gaps: torch.Tensor  # [B, L] float32 [m] (NaN: a memory without them)
+    next_gaps: torch.Tensor  # [B, L] float32 [m]
+    mask: torch.Tensor  # [B, L] bool, a transition of the sequence's episode
+    train: torch.Tensor  # [B, L] bool, its loss counts
 
 
 class _Plan(NamedTuple):
@@ -70,11 +95,13 @@ class ReplayMemory:
             never part of an observation; ``Config.aux_gap``).
         continuous: store actions as float32 target forces (the continuous action type),
             not uint8 indices.
+        state_size: keep with each observation the recurrent network's state before it
+            (``[state_size]`` float32; 0: a frame-stack network's memory, none).
     """
 
     def __init__(
         self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W),
-        n_controls: int = 0, gaps: bool = False, continuous: bool = False,
+        n_controls: int = 0, gaps: bool = False, continuous: bool = False, state_size: int = 0,
     ):  # fmt: skip
         self.capacity, self.frame_stack, self.stack_stride = capacity, frame_stack, stack_stride
         self.frames = np.zeros((capacity, *frame_shape), np.uint8)
@@ -87,6 +114,7 @@ class ReplayMemory:
         self.terminated = np.zeros(capacity, np.bool_)
         self.truncated = np.zeros(capacity, np.bool_)
         self.has_next = np.zeros(capacity, np.bool_)  # slot i + 1 is this episode's next obs
+        self.states = np.zeros((capacity if state_size else 0, state_size), np.float32)
         self.total = 0  # slots ever written
         self._warm = 0  # pre-roll frames written for the episode about to start
         self.transitions = 0  # transitions ever added
@@ -107,13 +135,19 @@ class ReplayMemory:
             names += ("controls",)
         if len(self.gaps):
             names += ("gaps",)
+        if len(self.states):
+            names += ("states",)
         return {n: getattr(self, n) for n in names}
 
-    def _write(self, obs: dict[str, np.ndarray], pos: int, gap: float = np.nan) -> None:
+    def _write(self, obs: dict[str, np.ndarray], pos: int, gap: float = np.nan, state: np.ndarray | None = None) -> None:
         j = self.total % self.capacity
         self.frames[j] = obs["frames"][-1]
         if len(self.gaps):
             self.gaps[j] = gap
+        if len(self.states):
+            if state is None:
+                raise ValueError("this memory keeps a recurrent state with each observation; none was given")
+            self.states[j] = state
         self.speeds[j] = float(obs["speeds"][-1])
         if self.controls.shape[1]:
             self.controls[j] = obs["controls"][-1]
@@ -125,23 +159,25 @@ class ReplayMemory:
     def warm(self, obs: dict[str, np.ndarray]) -> None:
         """Store a frame of the camera's pre-roll before the episode's first observation:
         the first stacks reach back into it, and it is never a transition's start."""
-        self._write(obs, self._warm)
+        self._write(obs, self._warm, state=self.states[0] * 0.0 if len(self.states) else None)  # never a start: no state to keep
         self._warm += 1
 
-    def start(self, obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
+    def start(self, obs: dict[str, np.ndarray], gap: float = np.nan, state: np.ndarray | None = None) -> None:
         """Begin an episode with its first observation (after its :meth:`warm` frames, if any),
-        and its gap [m] in a memory that keeps them."""
-        self._write(obs, self._warm, gap)
+        its gap [m] in a memory that keeps them, and the recurrent state before it in one that keeps those."""
+        self._write(obs, self._warm, gap, state)
         self._warm = 0
 
-    def add(self, action: int | float, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan) -> None:
-        """Record the transition from the newest slot, and the next observation (with its gap [m])."""
+    def add(self, action: int | float, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan,
+            state: np.ndarray | None = None) -> None:  # fmt: skip
+        """Record the transition from the newest slot, and the next observation (with its gap [m]
+        and the recurrent state before it)."""
         assert self.total > 0, "start() an episode first"
         j = (self.total - 1) % self.capacity
         self.actions[j], self.rewards[j] = action, reward
         self.terminated[j], self.truncated[j] = terminated, truncated
         self.has_next[j] = True
-        self._write(next_obs, int(self.pos[j]) + 1, gap)
+        self._write(next_obs, int(self.pos[j]) + 1, gap, state)
         self.transitions += 1
 
     def _stack_index(self, idx: np.ndarray) -> np.ndarray:
@@ -227,6 +263,36 @@ class ReplayMemory:
         The tensors are valid until the next call (they share this memory's buffer).
         """
         return _assemble([(self, self._plan(batch_size, rng, n_step, gamma))], self._buffer(batch_size))
+
+    def sample_sequences(self, batch_size: int, rng: np.random.Generator, length: int, burn_in: int) -> SequenceSamples:
+        """``batch_size`` sequences of up to ``length`` transitions, each starting at a valid
+        slot drawn uniformly, with the stored state before it (:class:`SequenceSamples`)."""
+        if not len(self.states):
+            raise ValueError("sequences need a memory that keeps the recurrent state (state_size > 0)")
+        idx = self._plan(batch_size, rng, 1, 1.0).idx  # [B] valid starts
+        k = np.arange(length)[None, :]  # [1, L]
+        alive = np.ones((len(idx), length), np.bool_)
+        for step in range(1, length):  # a transition of the same episode, all of it in memory
+            prev, cur = (idx + step - 1) % self.capacity, idx + step
+            alive[:, step] = alive[:, step - 1] & ~self.terminated[prev] & ~self.truncated[prev] & self.has_next[cur % self.capacity] & (cur + 1 < self.total)
+        reach = alive.sum(axis=1)  # [B] transitions in each sequence (>= 1)
+        slots = idx[:, None] + np.minimum(np.arange(length + 1)[None, :], reach[:, None])  # [B, L + 1]: the last observation repeated
+        j, jt = slots % self.capacity, slots[:, :-1] % self.capacity
+        stacks = self._stack_index(slots.reshape(-1)) % self.capacity  # [B (L + 1), S]
+        shape = (len(idx), length + 1, self.frame_stack)
+        frames = torch.from_numpy(self.frames[stacks].reshape(*shape, *self.frames.shape[1:]))
+        prev = idx - 1  # an episode's first observation follows a slot that has no next (or none at all)
+        first = (prev < 0) | ((prev >= self.total - self.capacity) & ~self.has_next[prev % self.capacity])
+        train = alive & ((k >= burn_in) | first[:, None])
+        gaps = self.gaps[jt] if len(self.gaps) else np.full(jt.shape, np.nan, np.float32)
+        next_gaps = self.gaps[j[:, 1:]] if len(self.gaps) else np.full(jt.shape, np.nan, np.float32)
+        return SequenceSamples(
+            indices=idx, states=torch.from_numpy(self.states[idx % self.capacity]), frames=frames,
+            speeds=torch.from_numpy(self.speeds[stacks].reshape(shape)), controls=torch.from_numpy(self.controls[stacks].reshape(*shape, -1)),
+            actions=torch.from_numpy(self.actions[jt].astype(np.int64)), rewards=torch.from_numpy(self.rewards[jt]),
+            terminated=torch.from_numpy(self.terminated[jt] & alive), truncated=torch.from_numpy(self.truncated[jt] & alive),
+            gaps=torch.from_numpy(gaps), next_gaps=torch.from_numpy(next_gaps), mask=torch.from_numpy(alive), train=torch.from_numpy(train),
+        )  # fmt: skip
 
     def _buffer(self, batch_size: int) -> torch.Tensor:
         """The ``[2, B, S, H, W]`` uint8 gather buffer (current and next stacks)."""

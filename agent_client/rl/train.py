@@ -98,7 +98,7 @@ def train(
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
     memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps,
-                          continuous=is_continuous(cfg.action))  # fmt: skip
+                          continuous=is_continuous(cfg.action), state_size=cfg.hidden if cfg.recurrent != "none" else 0)  # fmt: skip
 
     def load_replay(learner: Learner) -> None:
         step = int(learner.saved.get("global_step", 0))
@@ -156,7 +156,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             learner.acting_policy.reset()
             for frame in info.get("preroll", ()):
                 memory.warm(frame)
-            memory.start(obs, info["gap"])  # the gap: the auxiliary head's target, kept apart from obs
+            policy = learner.acting_policy
+            memory.start(obs, info["gap"], policy.state())  # the gap: the auxiliary head's target, kept apart from obs
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
@@ -164,7 +165,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
                 decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
-                memory.add(stored, reward, terminated, truncated, obs, info["gap"])
+                memory.add(stored, reward, terminated, truncated, obs, info["gap"], policy.state())  # a recurrent state: the one before obs
                 episode_return += reward
                 episode_len += 1
                 done = terminated or truncated
@@ -207,6 +208,8 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     rng = learner.acting_rng
     if learner.continuous:
         return explore(learner.acting_policy, obs, noise_std(cfg, step), rng)
+    # a recurrent student's state steps on every observation, whoever drives (it draws nothing)
+    own = learner.act(obs) if learner.q.recurrent else None
     if isinstance(learner.teacher, PolicyTeacher):  # a network on the same observation: distillation
         own, label = learner.teacher.decide(obs, env.actions, cfg.teacher_brake)
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
@@ -215,7 +218,7 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
         label = env.actions.imitate(learner.teacher(info), cfg.teacher_brake)  # privileged: reads the gap, never the network
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
             return Decision(label), label
-    decision = Decision(int(rng.integers(env.action_space.n))) if rng.random() < epsilon else learner.act(obs)
+    decision = Decision(int(rng.integers(env.action_space.n))) if rng.random() < epsilon else (own if own is not None else learner.act(obs))
     return decision, (label if learner.teacher is not None else decision.action)
 
 

@@ -49,14 +49,14 @@ def test_behind_a_still_lead_the_table_gives_the_last_cars_deviation_not_a_ratio
     rows = openacc_rows([STILL], ["acc"])
     assert rows[0].lead_dev_rms < STILL_LEAD_MPS
     line = openacc_table(rows)[-1]
-    assert line.startswith(f"| {STILL} | 10 |") and "dev " in line and " / " not in line
+    assert line.startswith(f"| {STILL} | 10, 10 |") and "dev " in line and " / " not in line
 
 
 def test_the_command_writes_the_table_of_all_nine_files_and_refuses_what_it_would_ignore(tmp_path):
     out = tmp_path / "oacc"
     result = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--methods", "acc", "--out", str(out)])
     assert result.exit_code == 0, result.output
-    assert "| real | acc |" in result.output and f"| {DYNAMIC} | 4 |" in result.output
+    assert "| real | acc |" in result.output and f"| {DYNAMIC} | 4, 4 |" in result.output
     assert sum(name in (out / "openacc.md").read_text() for name in OPENACC_FILES) == 9
     assert [r["platoon"] for r in json.loads((out / "openacc.json").read_text())] == ["real", "acc"] * 9
     for args, words in (
@@ -88,3 +88,9 @@ def test_openacc_refuses_a_bad_model_in_one_line(tmp_path):
     assert done.exit_code == 2 and "nothing.pt: no such checkpoint" in done.output
     done = CliRunner().invoke(main, ["evaluate", "--suite", "openacc", "--model", "acc=" + str(MODELS / "ice-eco.pt"), "--out", str(tmp_path)])
     assert done.exit_code == 2 and "taken" in done.output
+
+
+def test_followers_sets_the_simulated_platoons_length_not_the_real_ones():
+    rows = openacc_rows([DYNAMIC], ["acc"], followers=9)
+    assert [r.cars for r in rows] == [4, 10]
+    assert openacc_table(rows)[-1].startswith(f"| {DYNAMIC} | 4, 10 |")

@@ -76,7 +76,13 @@ def td_term(cfg: Config, q: QNetwork, target: QNetwork) -> LossTerm:
     """The Huber loss of the stored actions' Q-values to their Double-DQN targets."""
 
     def loss(out: Forward) -> torch.Tensor:
-        y = td_target(q, target, out.batch, out.device, cfg.gamma, cfg.absorbing_terminal)  # [B]
+        if out.next_q is None:
+            y = td_target(q, target, out.batch, out.device, cfg.gamma, cfg.absorbing_terminal)  # [B]
+        else:  # a recurrent network's sequence, unrolled: its next outputs are at hand
+            b, dev = out.batch, out.device
+            terminal_values = b.terminal_rewards.to(dev) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)
+            with torch.no_grad():
+                y = double_dqn_target(b.returns.to(dev), b.terminated.to(dev), *out.next_q, b.discounts.to(dev), terminal_values)
         return F.smooth_l1_loss(out.q_taken, y)  # Huber
 
     return LossTerm(NAME, None, loss)

@@ -25,6 +25,9 @@ class Forward(NamedTuple):
     q_taken: torch.Tensor  # [B] the outputs at the stored actions
     gap: torch.Tensor | None  # [B] the gap head's raw output, None without the head
     closing: torch.Tensor | None  # [B] the closing head's raw output, None without the head
+    # (recurrent) the next observations' online and target outputs [B, A], from the unrolled
+    # sequence: the TD target reads them instead of passing the next frames through the networks
+    next_q: tuple[torch.Tensor, torch.Tensor] | None = None
 
 
 class LossTerm(NamedTuple):

@@ -1,0 +1,142 @@
+"""The recurrent trunk (--recurrent gru): a GRU state carried step to step, replayed
+sequences with stored states and burn-in (R2D2), training and resuming over real servers."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from agent_client.rl.checkpoint import load_policy
+from agent_client.rl.config import Config, ConfigError
+from agent_client.rl.network import Policy, QNetwork, RecurrentQNetwork
+from agent_client.rl.replay import ReplayMemory
+from agent_client.rl.train import train
+
+H, W = 105, 150
+GRU = dict(recurrent="gru", frame_stack=2, stack_stride=1, burn_in=3, sequence_length=6)
+TINY = Config(
+    total_steps=120, learning_starts=30, train_every=4, batch_size=4, buffer_size=400, exploration_steps=100, target_sync_every=40,
+    episode_seconds=3.0, checkpoint_every=30, eval_every=0, eval_trajectories=(), log_every=20, hidden=32, conv_channels=(4, 8, 8), **GRU,
+)  # fmt: skip
+
+
+def _net(seed: int = 0) -> RecurrentQNetwork:
+    torch.manual_seed(seed)
+    net = QNetwork.of(TINY)
+    assert isinstance(net, RecurrentQNetwork)
+    return net.eval()
+
+
+def _obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return {"frames": rng.integers(0, 256, (2, H, W), dtype=np.uint8), "speeds": rng.uniform(0, 30, 2).astype(np.float32)}
+
+
+def test_stepping_equals_unrolling_and_the_state_starts_at_zero():
+    net, rng = _net(), np.random.default_rng(0)
+    seq = [_obs(rng) for _ in range(5)]
+    frames = torch.from_numpy(np.stack([o["frames"] for o in seq]))[None]
+    speeds = torch.from_numpy(np.stack([o["speeds"] for o in seq]))[None]
+    with torch.no_grad():
+        unrolled, *_ , last = net.unroll(frames, speeds, None, net.initial_state(1))
+        h = net.initial_state(1)
+        for k in range(5):
+            q, _, _, h = net.step(frames[:, k], speeds[:, k], None, h)
+            torch.testing.assert_close(q, unrolled[:, k], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(h, last, rtol=1e-5, atol=1e-6)
+    with pytest.raises(TypeError, match="state"):
+        net(frames[:, 0], speeds[:, 0])  # no silent decision without the state
+
+
+def test_a_policy_carries_the_state_and_forgets_it_with_the_episode():
+    net, rng = _net(), np.random.default_rng(1)
+    policy = Policy(net)
+    history, probe = [_obs(rng) for _ in range(4)], _obs(rng)
+    assert not policy.state().any()
+    cold = policy.outputs(probe["frames"], probe["speeds"])[0]
+    policy.reset()
+    for o in history:
+        policy(o)
+    assert policy.state().any()
+    warm = policy.outputs(probe["frames"], probe["speeds"])[0]
+    assert not torch.equal(cold, warm)  # what came before changes the answer
+    policy.reset()
+    assert not policy.state().any()
+    assert torch.equal(policy.outputs(probe["frames"], probe["speeds"])[0], cold)  # to the bit
+    assert Policy(QNetwork(2, hidden=32, conv_channels=(4, 8, 8))).state() is None
+
+
+def _memory_with_two_episodes() -> tuple[ReplayMemory, list[int]]:
+    """Episode A: 10 transitions (slots 0..10, truncated); episode B: 5 transitions (11..16, terminated).
+    Each slot's frame is its slot number; its state is the slot number in every unit."""
+    mem = ReplayMemory(100, frame_stack=2, stack_stride=1, state_size=3)
+
+    def obs(slot: int) -> dict[str, np.ndarray]:
+        return {"frames": np.full((2, H, W), slot, np.uint8), "speeds": np.full(2, slot, np.float32)}
+
+    slot = 0
+    for n, end in ((10, "truncated"), (5, "terminated")):
+        mem.start(obs(slot), state=np.full(3, slot, np.float32))
+        for k in range(n):
+            slot += 1
+            last = k == n - 1
+            mem.add(k % 3, float(slot), last and end == "terminated", last and end == "truncated", obs(slot), state=np.full(3, slot, np.float32))
+        slot += 1
+    return mem, [0, 11]
+
+
+def test_sequences_keep_their_stored_state_and_stop_at_the_episodes_end():
+    mem, starts = _memory_with_two_episodes()
+    seq = mem.sample_sequences(64, np.random.default_rng(0), length=6, burn_in=3)
+    for b, i in enumerate(seq.indices):
+        i = int(i)
+        assert seq.states[b].tolist() == [float(i)] * 3
+        episode_end = 10 if i < 11 else 16  # the slot of the episode's last observation
+        n = min(6, episode_end - i)
+        assert seq.mask[b].tolist() == [k < n for k in range(6)]
+        # step k's newest frame is slot i + k; past the end the last observation repeats
+        assert seq.frames[b, :, -1, 0, 0].tolist() == [min(i + k, episode_end) for k in range(7)]
+        assert seq.rewards[b, :n].tolist() == [float(i + k + 1) for k in range(n)]
+        assert bool(seq.terminated[b].any()) == (i >= 11 and i + 6 >= 16)
+        # an episode's first observation has an exact state: every step trains; else only past the burn-in
+        first = i in starts
+        assert seq.train[b].tolist() == [k < n and (first or k >= 3) for k in range(6)]
+    assert {int(i) for i in seq.indices} & set(starts)  # both kinds were drawn
+
+
+def test_a_memory_without_states_has_no_sequences_and_one_with_them_needs_them():
+    with pytest.raises(ValueError, match="state_size"):
+        ReplayMemory(10, 2, 1).sample_sequences(1, np.random.default_rng(0), 4, 1)
+    with pytest.raises(ValueError, match="recurrent state"):
+        ReplayMemory(10, 2, 1, state_size=3).start({"frames": np.zeros((2, H, W), np.uint8), "speeds": np.zeros(2, np.float32)})
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    (dict(action="continuous"), "action"), (dict(n_step=3), "n_step"), (dict(servers=2), "servers"),
+    (dict(sequence_length=3), "sequence_length"), (dict(recurrent="lstm"), "recurrent"),
+])  # fmt: skip
+def test_what_the_recurrent_trunk_does_not_do_is_refused_by_name(change, field):
+    with pytest.raises(ConfigError) as err:
+        dataclasses.replace(TINY, **change)
+    assert err.value.field == field
+
+
+@pytest.mark.integration
+def test_a_recurrent_run_resumed_equals_an_uninterrupted_one_and_drives(tmp_path):
+    cfg = dataclasses.replace(TINY, teacher="platoon", action="ramp-fine", decision="mean", aux_closing=0.1, preroll=True,
+                              train_trajectories=("stopped", "random"))  # fmt: skip
+    whole = train(cfg, tmp_path / "whole", progress=False)
+    train(dataclasses.replace(cfg, total_steps=60), tmp_path / "split", progress=False)
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = (torch.load(tmp_path / d / "latest.pt", weights_only=True) for d in ("whole", "split"))
+    assert whole["steps"] == 120 and a["state"]["episodes"] == b["state"]["episodes"] > 1 and a["state"]["updates"] > 0
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    assert any(k.startswith("gru.") for k in a["model"])
+    # the memory kept a state with every observation, and the states moved
+    with np.load(tmp_path / "whole" / a["replay"][0]) as z:
+        assert z["states"].shape[1] == 32 and z["states"].shape[0] > whole["steps"] and np.abs(z["states"]).sum() > 0
+    net, loaded = load_policy(str(tmp_path / "whole" / "latest.pt"))
+    assert isinstance(net, RecurrentQNetwork) and loaded.recurrent == "gru"

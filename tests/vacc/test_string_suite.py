@@ -1,0 +1,65 @@
+"""vacc evaluate --suite string: gains behind sinusoidal leads and platoons behind held-out random leads."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from vacc.cli import main
+from vacc.string_suite import (
+    LEAD_SEEDS,
+    gain_rows,
+    law_maker,
+    model_maker,
+    platoon_rows,
+    random_lead,
+)
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+def test_the_acc_laws_gains_meet_its_linear_theory():
+    rows = gain_rows("acc", law_maker("acc"))
+    assert len(rows) == 10
+    for r in rows:
+        assert not r.collided and r.gain == pytest.approx(r.theory, rel=0.10, abs=0.02), r
+    assert max(r.gain for r in rows) > 1.0  # the shipped gains amplify near 0.05 Hz (docs/platoons.md)
+
+
+def test_the_platoon_teacher_attenuates_where_eco_firm_amplifies():
+    assert max(r.gain for r in gain_rows("platoon", law_maker("platoon"))) < 1.0
+    assert max(r.gain for r in gain_rows("eco-firm", law_maker("eco-firm"), speeds=(20.0,), freqs=(0.02,))) > 1.0
+
+
+def test_random_leads_are_the_worlds_random_trajectories_and_differ_by_seed():
+    a, b = random_lead(LEAD_SEEDS[0]), random_lead(LEAD_SEEDS[1])
+    assert a[0][-1] == pytest.approx(120.0, abs=0.01) and a[1].shape == a[0].shape
+    assert not (a[1] == b[1]).all()
+    assert random_lead(LEAD_SEEDS[0])[1] == pytest.approx(a[1], abs=0.0)
+
+
+def test_a_camera_follower_gets_a_gain_and_a_platoon_row():
+    make = model_maker(str(MODELS / "ice-eco.pt"))
+    (row,) = gain_rows("ice-eco", make, speeds=(20.0,), freqs=(0.3,))
+    assert not row.collided and math.isfinite(row.gain) and math.isnan(row.theory) and row.min_gap_m > 2.0
+
+
+def test_the_command_writes_both_tables_and_refuses_what_it_would_ignore(tmp_path):
+    out = tmp_path / "string"
+    done = CliRunner().invoke(main, ["evaluate", "--suite", "string", "--methods", "acc,platoon", "--followers", "3", "--seeds", "7001", "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    assert "| acc | 8 | 1.03 (1.03) |" in done.output and "| platoon | 7001 | 4 |" in done.output
+    got = json.loads((out / "string.json").read_text())
+    assert len(got["gains"]) == 20 and [p["driver"] for p in got["platoons"]] == ["acc", "platoon"]
+    for args, words in ((["--methods", "hdm"], "drives the laws"), (["--scenario", "ev"], "takes --out"), (["--jobs", "2"], "--jobs")):
+        done = CliRunner().invoke(main, ["evaluate", "--suite", "string", "--out", str(out), *args])
+        assert done.exit_code == 2 and words in done.output, done.output
+
+
+def test_platoon_rows_of_a_law_keep_their_seed_and_length():
+    (row,) = platoon_rows("acc", law_maker("acc"), seeds=(7002,), followers=2)
+    assert row.seed == 7002 and row.cars == 3 and not row.collided and row.min_gap_m > 2.0
