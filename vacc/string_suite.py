@@ -11,9 +11,11 @@ Two parts, each for every law in ``--methods`` and every ``--model`` (from its c
   is string-stable where every gain is at most 1; a gain g at a frequency grows a wave by
   g^n over n cars. For the ACC law the linear theory (:func:`~agent_client.controllers.acc.speed_transfer`)
   is printed beside it.
-* **Platoons**: :data:`FOLLOWERS` followers behind random leads of held-out seeds
-  (:data:`LEAD_SEEDS`, :data:`LEAD_SECONDS` each): the lead-to-last amplification of
-  speed deviation (RMS and peak, after the first fifth), the closest gap, collisions.
+* **Platoons**: :data:`FOLLOWERS` followers behind held-out leads like OpenACC's (a driver
+  cruising, then changing speed within :data:`LEAD_SPEEDS`; seeds :data:`LEAD_SEEDS`,
+  :data:`LEAD_SECONDS` each) and behind a lead at a constant :data:`STILL_SPEED`: the
+  lead-to-last amplification of speed deviation (RMS and peak, after the first fifth), the
+  last car's own deviation (what counts behind the constant lead), the closest gap, collisions.
 """
 
 from __future__ import annotations
@@ -29,21 +31,23 @@ import numpy as np
 from agent_client.controllers.acc import AccController, speed_transfer
 from agent_client.rl.teachers import REGISTRY, teacher_law
 from energy.string_stability import amplification, safety
-from protocol.scenarios import RANDOM
-from sim_server.world import World, WorldConfig
+from vacc.openacc_suite import STILL_LEAD_MPS
 from vacc.platoon_world import drive_platoon
 
 __all__ = ["SINE_SPEEDS", "SINE_FREQS", "SINE_AMPLITUDE", "LEAD_SEEDS", "FOLLOWERS", "LAWS", "GainRow", "PlatoonRow",
-           "sine_gain", "gain_rows", "platoon_rows", "random_lead", "law_maker", "model_maker", "run_string", "string_tables"]  # fmt: skip
+           "sine_gain", "gain_rows", "platoon_rows", "held_out_lead", "still_lead", "law_maker", "model_maker", "run_string", "string_tables"]  # fmt: skip
 
 SINE_SPEEDS = (8.0, 20.0)  # [m/s] the OpenACC leads' slowest (8.1) and a highway speed
 SINE_FREQS = (0.02, 0.05, 0.1, 0.2, 0.3)  # [Hz] the OpenACC leads' speed changes lie below 0.1 Hz
 SINE_AMPLITUDE = 0.5  # [m/s] small enough that no limit of the ACC law engages
 SETTLE_S = 30.0  # [s] left out of each sine fit: the follower settles to its spacing
 SINE_PERIODS = 5
-LEAD_SEEDS = (7001, 7002, 7003)  # random leads used by no training recipe, no other suite
-LEAD_SECONDS = 120.0
+LEAD_SEEDS = (7001, 7002, 7003)  # held-out leads: seeds no training draws from this generator
+LEAD_SECONDS = 180.0
+LEAD_SPEEDS = (4.0, 12.0)  # [m/s] the OpenACC leads drive 4.3-11.2 m/s
+STILL_SPEED = 8.1  # [m/s] OpenACC's constant-speed lead (mixed_dynamic_part5)
 FOLLOWERS = 10
+LEAD_DT = 0.1  # [s] the held-out leads' sample period
 LAWS = tuple(name for name, t in REGISTRY.items() if t.gap is not None)  # --methods: the ACC and each teacher law
 
 
@@ -59,7 +63,7 @@ class GainRow(NamedTuple):
 
 class PlatoonRow(NamedTuple):
     driver: str
-    seed: int
+    lead: str  # "seed N" or "still" (the constant lead)
     cars: int  # the lead included
     speed_rms: float  # [-] lead-to-last, after the first fifth
     speed_peak: float
@@ -113,24 +117,36 @@ def gain_rows(name: str, make: Maker, speeds: Sequence[float] = SINE_SPEEDS, fre
     return rows
 
 
-def random_lead(seed: int, seconds: float = LEAD_SECONDS) -> tuple[np.ndarray, np.ndarray]:
-    """The random trajectory of episode ``seed`` (as a single-car world draws it), its first ``seconds``."""
-    world = World(WorldConfig(traffic_per_lane=0))
-    world.reset("ice", seed, RANDOM)
-    v = np.asarray(world.v_lead_profile, dtype=float)
-    t = np.arange(v.shape[0]) * world.config.physics_dt
-    keep = t <= seconds
-    return t[keep], v[keep]
+def held_out_lead(seed: int, seconds: float = LEAD_SECONDS) -> tuple[np.ndarray, np.ndarray]:
+    """A lead like OpenACC's manually driven ones (times [s], speeds [m/s] every 0.1 s): it
+    cruises 5-20 s, then moves to a new speed in :data:`LEAD_SPEEDS` at 0.3-1.2 m/s^2, over
+    and over; drawn from ``seed`` alone."""
+    rng = np.random.default_rng([seed, 57])
+    v = [rng.uniform(6.0, 10.0)]
+    while len(v) * LEAD_DT <= seconds:
+        v += [v[-1]] * int(rng.uniform(5.0, 20.0) / LEAD_DT)
+        target, accel = rng.uniform(*LEAD_SPEEDS), rng.uniform(0.3, 1.2)
+        steps = max(1, int(abs(target - v[-1]) / (accel * LEAD_DT)))
+        v += list(np.linspace(v[-1], target, steps + 1)[1:])
+    speeds = np.array(v[: int(round(seconds / LEAD_DT)) + 1])
+    return np.arange(speeds.shape[0]) * LEAD_DT, speeds
 
 
-def platoon_rows(name: str, make: Maker, seeds: Sequence[int] = LEAD_SEEDS, followers: int = FOLLOWERS) -> list[PlatoonRow]:
+def still_lead(seconds: float = LEAD_SECONDS) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(int(round(seconds / LEAD_DT)) + 1) * LEAD_DT
+    return t, np.full_like(t, STILL_SPEED)
+
+
+def platoon_rows(name: str, make: Maker, seeds: Sequence[int] = LEAD_SEEDS, followers: int = FOLLOWERS, seconds: float = LEAD_SECONDS) -> list[PlatoonRow]:
+    """A platoon behind each held-out lead, then behind the constant one."""
     rows = []
-    for seed in seeds:
-        run = _drive(make, followers, random_lead(seed))
+    leads = [(f"seed {s}", held_out_lead(s, seconds)) for s in seeds] + [("still", still_lead(seconds))]
+    for label, lead in leads:
+        run = _drive(make, followers, lead)
         amp = amplification(run.t, run.v)
         gap = min((s.min_gap_m for s in safety(run.t, run.v, run.gaps)), default=float("nan"))
         r = amp.lead_to_last
-        rows.append(PlatoonRow(name, seed, run.v.shape[0], r.speed_rms, r.speed_peak, amp.lead_speed_dev_rms, amp.last_speed_dev_rms, gap,
+        rows.append(PlatoonRow(name, label, run.v.shape[0], r.speed_rms, r.speed_peak, amp.lead_speed_dev_rms, amp.last_speed_dev_rms, gap,
                                run.collided is not None))  # fmt: skip
     return rows
 
@@ -158,11 +174,12 @@ def string_tables(gains: Sequence[GainRow], platoons: Sequence[PlatoonRow]) -> l
         peak = max((g.gain for g in rows if not g.collided), default=float("nan"))
         lines.append(f"| {driver} | {speed:g} | " + " | ".join(cells.get(f, "") for f in freqs) + f" | {peak:.2f} |")
     if platoons:
-        lines += ["", "Platoons behind held-out random leads: lead-to-last amplification of speed deviation after the first fifth, RMS / peak.", "",
-                  "| driver | lead seed | cars | lead dev [m/s] | RMS / peak | closest gap [m] |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+        lines += ["", "Platoons behind held-out leads like OpenACC's: lead-to-last amplification of speed deviation after the first fifth, "
+                  "RMS / peak, and the last car's own deviation (behind the constant lead, the figure that counts).", "",
+                  "| driver | lead | cars | lead dev [m/s] | RMS / peak | last car dev [m/s] | closest gap [m] |", "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
         for p in platoons:
-            cell = "collision" if p.collided else f"{p.speed_rms:.2f} / {p.speed_peak:.2f}"
-            lines.append(f"| {p.driver} | {p.seed} | {p.cars} | {p.lead_dev_rms:.3f} | {cell} | {p.min_gap_m:.1f} |")
+            cell = "collision" if p.collided else ("-" if p.lead_dev_rms < STILL_LEAD_MPS else f"{p.speed_rms:.2f} / {p.speed_peak:.2f}")
+            lines.append(f"| {p.driver} | {p.lead} | {p.cars} | {p.lead_dev_rms:.3f} | {cell} | {p.last_dev_rms:.3f} | {p.min_gap_m:.1f} |")
     return lines
 
 

@@ -215,8 +215,14 @@ class RecurrentQNetwork(QNetwork):
         """One step of ``B`` observations (as :meth:`QNetwork.forward`'s) from ``state``
         ``[B, hidden]``: the outputs ``[B, A]``, the heads' raw outputs ``[B]`` (or None) and the new state."""
         x = self._hidden(frames, speeds, controls)  # [B, H]
-        out, h = self.gru(x[:, None], state[None])
-        return (*self._heads(out[:, 0]), h[0])
+        # nn.GRU's cell written out: at batch 1 the module's own call costs more than its arithmetic
+        g = self.gru
+        xr, xz, xn = F.linear(x, g.weight_ih_l0, g.bias_ih_l0).chunk(3, 1)
+        hr, hz, hn = F.linear(state, g.weight_hh_l0, g.bias_hh_l0).chunk(3, 1)
+        r, z = torch.sigmoid(xr + hr), torch.sigmoid(xz + hz)
+        n = torch.tanh(xn + r * hn)
+        h = n + z * (state - n)  # (1 - z) n + z h
+        return (*self._heads(h), h)
 
     def unroll(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
         """``B`` sequences of ``L`` observations (frames ``[B, L, S, H, W]``, speeds ``[B, L, S]``,

@@ -86,6 +86,9 @@ _ECO_FIRM = Teacher("eco-firm", "the eco law with beta 0.15, opening a short gap
 # A 10-car platoon of it stays string-stable behind every OpenACC lead when it sees the car
 # ahead 0.5 s late, as a camera does; eco-firm's does not (docs/platoons.md).
 _PLATOON = Teacher("platoon", "the eco gap with beta 0.2, gamma 0.8: string-stable seeing the car ahead 0.5 s late", "eco", 0.2, 0.8)
+# The same, calmer on the gap: a camera's slow error in the gap (about 0.6 m at 15 m) moves
+# each car's speed a quarter as much, and the platoon stays string-stable 0.8 s late.
+_PLATOON_CALM = Teacher("platoon-calm", "the eco gap with beta 0.05, gamma 1.0: the platoon law, calm on a noisy gap", "eco", 0.05, 1.0)
 
 REGISTRY: dict[str, Teacher] = {t.name: t for t in (
     Teacher("none", "no teacher: Double DQN on the reward", gap=None),
@@ -99,7 +102,7 @@ REGISTRY: dict[str, Teacher] = {t.name: t for t in (
     _ECO, _with_margin(_ECO),
     _ECO_MID, _with_margin(_ECO_MID),
     _ECO_FIRM, _with_margin(_ECO_FIRM),
-    _PLATOON,
+    _PLATOON, _PLATOON_CALM,
 )}  # fmt: skip
 
 TEACHERS = tuple(REGISTRY)  # who labels the states in teacher (DAgger) runs

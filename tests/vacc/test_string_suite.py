@@ -1,4 +1,4 @@
-"""vacc evaluate --suite string: gains behind sinusoidal leads and platoons behind held-out random leads."""
+"""vacc evaluate --suite string: gains behind sinusoidal leads and platoons behind held-out leads."""
 
 from __future__ import annotations
 
@@ -6,17 +6,21 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from vacc.cli import main
 from vacc.string_suite import (
     LEAD_SEEDS,
+    LEAD_SPEEDS,
+    STILL_SPEED,
     gain_rows,
+    held_out_lead,
     law_maker,
     model_maker,
     platoon_rows,
-    random_lead,
+    still_lead,
 )
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -35,11 +39,14 @@ def test_the_platoon_teacher_attenuates_where_eco_firm_amplifies():
     assert max(r.gain for r in gain_rows("eco-firm", law_maker("eco-firm"), speeds=(20.0,), freqs=(0.02,))) > 1.0
 
 
-def test_random_leads_are_the_worlds_random_trajectories_and_differ_by_seed():
-    a, b = random_lead(LEAD_SEEDS[0]), random_lead(LEAD_SEEDS[1])
-    assert a[0][-1] == pytest.approx(120.0, abs=0.01) and a[1].shape == a[0].shape
+def test_held_out_leads_drive_at_openaccs_speeds_and_differ_by_seed():
+    a, b = held_out_lead(LEAD_SEEDS[0]), held_out_lead(LEAD_SEEDS[1])
+    assert a[0][-1] == pytest.approx(180.0, abs=0.01) and a[1].shape == a[0].shape
+    assert LEAD_SPEEDS[0] <= a[1].min() and a[1].max() <= LEAD_SPEEDS[1] and a[1].std() > 0.5
+    assert abs(np.diff(a[1])).max() / 0.1 < 2.0  # a driver's changes of speed, no jumps
     assert not (a[1] == b[1]).all()
-    assert random_lead(LEAD_SEEDS[0])[1] == pytest.approx(a[1], abs=0.0)
+    assert held_out_lead(LEAD_SEEDS[0])[1] == pytest.approx(a[1], abs=0.0)
+    assert (still_lead(10.0)[1] == STILL_SPEED).all()
 
 
 def test_a_camera_follower_gets_a_gain_and_a_platoon_row():
@@ -52,14 +59,16 @@ def test_the_command_writes_both_tables_and_refuses_what_it_would_ignore(tmp_pat
     out = tmp_path / "string"
     done = CliRunner().invoke(main, ["evaluate", "--suite", "string", "--methods", "acc,platoon", "--followers", "3", "--seeds", "7001", "--out", str(out)])
     assert done.exit_code == 0, done.output
-    assert "| acc | 8 | 1.03 (1.03) |" in done.output and "| platoon | 7001 | 4 |" in done.output
+    assert "| acc | 8 | 1.03 (1.03) |" in done.output and "| platoon | seed 7001 | 4 |" in done.output and "| platoon | still | 4 |" in done.output
     got = json.loads((out / "string.json").read_text())
-    assert len(got["gains"]) == 20 and [p["driver"] for p in got["platoons"]] == ["acc", "platoon"]
+    assert len(got["gains"]) == 20
+    assert [(p["driver"], p["lead"]) for p in got["platoons"]] == [(d, k) for d in ("acc", "platoon") for k in ("seed 7001", "still")]
     for args, words in ((["--methods", "hdm"], "drives the laws"), (["--scenario", "ev"], "takes --out"), (["--jobs", "2"], "--jobs")):
         done = CliRunner().invoke(main, ["evaluate", "--suite", "string", "--out", str(out), *args])
         assert done.exit_code == 2 and words in done.output, done.output
 
 
-def test_platoon_rows_of_a_law_keep_their_seed_and_length():
-    (row,) = platoon_rows("acc", law_maker("acc"), seeds=(7002,), followers=2)
-    assert row.seed == 7002 and row.cars == 3 and not row.collided and row.min_gap_m > 2.0
+def test_platoons_of_the_platoon_law_attenuate_and_hold_still_behind_a_still_lead():
+    moving, still = platoon_rows("platoon", law_maker("platoon"), seeds=(7002,), followers=4)
+    assert moving.lead == "seed 7002" and moving.cars == 5 and not moving.collided and moving.min_gap_m > 2.0
+    assert moving.speed_rms < 1.0 and still.lead == "still" and still.last_dev_rms < 0.01
