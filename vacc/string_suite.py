@@ -40,6 +40,7 @@ __all__ = ["SINE_SPEEDS", "SINE_FREQS", "SINE_AMPLITUDE", "LEAD_SEEDS", "FOLLOWE
 SINE_SPEEDS = (8.0, 20.0)  # [m/s] the OpenACC leads' slowest (8.1) and a highway speed
 SINE_FREQS = (0.02, 0.05, 0.1, 0.2, 0.3)  # [Hz] the OpenACC leads' speed changes lie below 0.1 Hz
 SINE_AMPLITUDE = 0.5  # [m/s] small enough that no limit of the ACC law engages
+LAG_FREQ = 0.1  # [Hz] where the table gives the follower's lag (how late it answers the lead)
 SETTLE_S = 30.0  # [s] left out of each sine fit: the follower settles to its spacing
 SINE_PERIODS = 5
 LEAD_SEEDS = (7001, 7002, 7003)  # held-out leads: seeds no training draws from this generator
@@ -56,6 +57,7 @@ class GainRow(NamedTuple):
     speed: float  # [m/s] the sine's mean
     freq: float  # [Hz]
     gain: float  # [-] follower's speed amplitude over the lead's at freq
+    lag_s: float  # [s] how late the follower's speed wave follows the lead's
     theory: float  # [-] the linearised ACC law's |H|; NaN for anything else
     min_gap_m: float
     collided: bool
@@ -76,11 +78,11 @@ class PlatoonRow(NamedTuple):
 Maker = Callable[[], Any]
 
 
-def _sine_amplitude(t: np.ndarray, y: np.ndarray, f: float) -> float:
-    """Amplitude of the f [Hz] component of y by least squares (sine, cosine, offset)."""
+def _sine_component(t: np.ndarray, y: np.ndarray, f: float) -> complex:
+    """The f [Hz] component of y by least squares (sine, cosine, offset), as a phasor."""
     basis = np.stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)], axis=1)
     c, *_ = np.linalg.lstsq(basis, y, rcond=None)
-    return math.hypot(c[0], c[1])
+    return complex(c[0], c[1])
 
 
 def _scenario(controller: Any) -> str:
@@ -94,15 +96,17 @@ def _drive(make: Maker, n: int, lead: tuple[np.ndarray, np.ndarray]) -> Any:
     return drive_platoon(controllers, [_scenario(controllers[0])] * n, lead, [AccController().reference_gap(v0)] * n, host_speed=v0)
 
 
-def sine_gain(make: Maker, speed: float, freq: float) -> tuple[float, float, bool]:
-    """(gain, closest gap [m], collided) of one follower behind a sinusoidal lead."""
+def sine_gain(make: Maker, speed: float, freq: float) -> tuple[float, float, float, bool]:
+    """(gain, lag [s], closest gap [m], collided) of one follower behind a sinusoidal lead;
+    the lag is how late its speed's wave follows the lead's (its phase over 2 pi f)."""
     t = np.arange(0.0, SETTLE_S + SINE_PERIODS / freq + 1e-9, 0.1)
     run = _drive(make, 1, (t, speed + SINE_AMPLITUDE * np.sin(2 * np.pi * freq * t)))
     m = run.t >= SETTLE_S
     if run.collided is not None or m.sum() < 10:
-        return float("nan"), float(run.gaps.min()), True
-    gain = _sine_amplitude(run.t[m], run.v[1, m], freq) / _sine_amplitude(run.t[m], run.v[0, m], freq)
-    return gain, float(run.gaps.min()), False
+        return float("nan"), float("nan"), float(run.gaps.min()), True
+    ratio = _sine_component(run.t[m], run.v[1, m], freq) / _sine_component(run.t[m], run.v[0, m], freq)
+    lag = -float(np.angle(ratio)) / (2 * np.pi * freq)
+    return abs(ratio), lag, float(run.gaps.min()), False
 
 
 def gain_rows(name: str, make: Maker, speeds: Sequence[float] = SINE_SPEEDS, freqs: Sequence[float] = SINE_FREQS) -> list[GainRow]:
@@ -111,9 +115,9 @@ def gain_rows(name: str, make: Maker, speeds: Sequence[float] = SINE_SPEEDS, fre
     rows = []
     for v in speeds:
         for f in freqs:
-            gain, gap, hit = sine_gain(make, v, f)
+            gain, lag, gap, hit = sine_gain(make, v, f)
             h = abs(speed_transfer(law, 2 * np.pi * f)) if theory else float("nan")
-            rows.append(GainRow(name, v, f, gain, h, gap, hit))
+            rows.append(GainRow(name, v, f, gain, lag, h, gap, hit))
     return rows
 
 
@@ -167,12 +171,13 @@ def string_tables(gains: Sequence[GainRow], platoons: Sequence[PlatoonRow]) -> l
     freqs = sorted({g.freq for g in gains})
     lines = ["Speed-to-speed gain of one follower behind a sinusoidal lead "
              f"(±{SINE_AMPLITUDE} m/s; the ACC's linear theory in brackets; over 1 amplifies down a platoon).", "",
-             "| driver | speed [m/s] | " + " | ".join(f"{f:g} Hz" for f in freqs) + " | peak |",
-             "| --- | --- | " + " | ".join("---" for _ in freqs) + " | --- |"]  # fmt: skip
+             "| driver | speed [m/s] | " + " | ".join(f"{f:g} Hz" for f in freqs) + f" | peak | lag at {LAG_FREQ:g} Hz [s] |",
+             "| --- | --- | " + " | ".join("---" for _ in freqs) + " | --- | --- |"]  # fmt: skip
     for (driver, speed), rows in _group(gains, lambda g: (g.driver, g.speed)).items():
         cells = {g.freq: ("collision" if g.collided else f"{g.gain:.2f}" + ("" if math.isnan(g.theory) else f" ({g.theory:.2f})")) for g in rows}
         peak = max((g.gain for g in rows if not g.collided), default=float("nan"))
-        lines.append(f"| {driver} | {speed:g} | " + " | ".join(cells.get(f, "") for f in freqs) + f" | {peak:.2f} |")
+        lag = next((g.lag_s for g in rows if g.freq == LAG_FREQ), float("nan"))
+        lines.append(f"| {driver} | {speed:g} | " + " | ".join(cells.get(f, "") for f in freqs) + f" | {peak:.2f} | {lag:.2f} |")
     if platoons:
         lines += ["", "Platoons behind held-out leads like OpenACC's: lead-to-last amplification of speed deviation after the first fifth, "
                   "RMS / peak, and the last car's own deviation (behind the constant lead, the figure that counts).", "",

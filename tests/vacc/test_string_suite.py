@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from agent_client.controllers.acc import AccController, speed_transfer
 from vacc.cli import main
 from vacc.string_suite import (
     LEAD_SEEDS,
@@ -31,6 +32,8 @@ def test_the_acc_laws_gains_meet_its_linear_theory():
     assert len(rows) == 10
     for r in rows:
         assert not r.collided and r.gain == pytest.approx(r.theory, rel=0.10, abs=0.02), r
+        theory_lag = -np.angle(speed_transfer(AccController(), 2 * np.pi * r.freq)) / (2 * np.pi * r.freq)
+        assert r.lag_s == pytest.approx(theory_lag, abs=0.1)  # measured: within 0.05 s (the 10 Hz hold)
     assert max(r.gain for r in rows) > 1.0  # the shipped gains amplify near 0.05 Hz (docs/platoons.md)
 
 
