@@ -355,6 +355,7 @@ def _tree_rss(pid: int) -> dict[int, int]:
 
 
 ECO_MODEL = "ice-eco.pt"  # the shipped model whose whole decision (zoom 2, controls, the mean) the bench times too
+GRU_STACK = 2  # frames the recurrent trunk's row stacks (its GRU carries the rest)
 
 
 def training_peak_rss(steps: int) -> dict[str, Any]:
@@ -491,10 +492,14 @@ def run_bench(size: str) -> dict[str, Any]:
         rows["highway_env_peer"] = highway_peer(max(50, steps // 20), reps)
         bar.update(1)
         from agent_client.bench import ddqn as ddqn_bench
+        from agent_client.rl.config import Config
         from vacc import bench_sb3
 
         lat = ddqn_bench.decision_latency(repeats=z.decisions)
         rows["decision_latency"] = {"ms": {"median": lat["median_s"] * 1e3, "p90": lat["p90_s"] * 1e3}, "forward_ms": lat["forward_median_s"] * 1e3}
+        gru = ddqn_bench.decision_latency(repeats=z.decisions, cfg=Config(recurrent="gru", frame_stack=GRU_STACK, stack_stride=2))
+        rows["gru_decision_latency"] = {"ms": {"median": gru["median_s"] * 1e3, "p90": gru["p90_s"] * 1e3}, "forward_ms": gru["forward_median_s"] * 1e3,
+                                        "x_stack": gru["median_s"] / lat["median_s"]}  # fmt: skip
         eco = ddqn_bench.model_decision_latency(models_dir() / ECO_MODEL, repeats=z.decisions)
         rows["eco_decision_latency"] = eco if "error" in eco else {
             "model": eco["model"], "ms": {"median": eco["median_s"] * 1e3, "p90": eco["p90_s"] * 1e3}, "forward_ms": eco["forward_median_s"] * 1e3}
@@ -595,6 +600,11 @@ def format_table(result: dict[str, Any]) -> str:
         label = f"the shipped {eco.get('model', ECO_MODEL)}"
         lines.append(f"{label:34} " + (eco["error"] if "error" in eco else
                      f"{eco['ms']['median']:>9.3f} ms {'p90 ' + format(eco['ms']['p90'], '.3f'):>22}  <= 0.5 ms (forward {eco['forward_ms']:.3f} ms)"))
+    gru = f.get("gru_decision_latency")  # absent from a bench before the recurrent trunk
+    if gru is not None:
+        d = gru["ms"]
+        lines.append(f"{'GRU trunk, ' + str(GRU_STACK) + '-frame stack':34} {d['median']:>9.3f} ms {'p90 ' + format(d['p90'], '.3f'):>22}  "
+                     f"{gru['x_stack']:.2f}x the 8-frame stack (forward {gru['forward_ms']:.3f} ms)")  # fmt: skip
     peer = f["sb3_decision_peer"]
     lines.append(f"{'SB3 predict, same net, stack given':34} " + (peer["error"] if "error" in peer else f"{peer['ms']['median']:>9.3f} ms {'p90 ' + format(peer['ms']['p90'], '.3f'):>22}  (peer)"))
     d = f["replay_sample"]["ms"]

@@ -81,9 +81,13 @@ def decision_latency(q: QNetwork | None = None, repeats: int = 300, cfg: Config 
         obs = {"image": image.tobytes(), "image_shape": [height, width, 1], "v_host": 30.0, "accel": 0.0, "set_speed": cfg.set_speed}
         whole = latency(lambda: ctl(obs), repeats)
         stacked = ctl.warm(obs)
-        inputs = batch_of_one(ctl.q, stacked["frames"].clone(), stacked["speeds"], stacked.get("controls"))
-        with torch.inference_mode():
-            forward = latency(lambda: ctl.q(*inputs), repeats)
+        frames, speeds, controls = stacked["frames"].clone(), stacked["speeds"], stacked.get("controls")
+        if ctl.q.recurrent:  # its forward is a step of its state
+            forward = latency(lambda: ctl.policy.outputs(frames, speeds, controls), repeats)
+        else:
+            inputs = batch_of_one(ctl.q, frames, speeds, controls)
+            with torch.inference_mode():
+                forward = latency(lambda: ctl.q(*inputs), repeats)
         return {**whole, "forward_median_s": forward["median_s"]}
 
 

@@ -38,6 +38,8 @@ def test_smoke_bench_reports_every_figure(tmp_path):
     eco = figures["eco_decision_latency"]  # the shipped eco model's whole path
     assert eco["model"] == "ice-eco.pt" and 0 < eco["forward_ms"] < 2 * eco["ms"]["median"]
     assert "the shipped ice-eco.pt" in result.stdout
+    gru = figures["gru_decision_latency"]  # the recurrent trunk's decision beside the stack's, in the same run
+    assert 0 < gru["forward_ms"] < 2 * gru["ms"]["median"] and gru["x_stack"] > 0 and "GRU trunk, 2-frame stack" in result.stdout
     assert figures["lockstep_rgb400"]["image_bytes"] == 400 * 400 * 3
     assert figures["lockstep_gray200"]["image_bytes"] == 200 * 200
     # The peer is optional (the bench extra); when absent it says how to install it.
