@@ -28,6 +28,7 @@ import numpy as np
 
 from agent_client.controllers.acc import AccController
 from agent_client.controllers.hdm import HdmParams, HumanDriverModel
+from agent_client.progress import progress_bar
 from energy.openacc import OPENACC_FILES, OpenAccRun, read_openacc
 from energy.string_stability import amplification, safety
 from vacc.platoon_sim import lead_profile, simulate_platoon
@@ -112,11 +113,13 @@ def openacc_rows(files: Sequence[str] = OPENACC_FILES, platoons: Sequence[str] =
         energy.errors.DataError: a file that does not read.
     """
     rows = []
-    for name in files:
-        run = read_openacc(name)
-        rows.append(_row(name, "real", run.t, run.speed, run.ivs, False))
-        rows += [simulated_row(run, kind, followers) for kind in platoons]
-        rows += [camera_row(run, model, path, followers) for model, path in (models or {}).items()]
+    with progress_bar(len(files), "openacc", unit="file", enabled=bool(models)) as bar:  # a learned platoon takes minutes a file
+        for name in files:
+            run = read_openacc(name)
+            rows.append(_row(name, "real", run.t, run.speed, run.ivs, False))
+            rows += [simulated_row(run, kind, followers) for kind in platoons]
+            rows += [camera_row(run, model, path, followers) for model, path in (models or {}).items()]
+            bar.update(1)
     return rows
 
 

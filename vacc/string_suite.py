@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from agent_client.controllers.acc import AccController, speed_transfer
+from agent_client.progress import progress_bar
 from agent_client.rl.teachers import REGISTRY, teacher_law
 from energy.string_stability import amplification, safety
 from vacc.openacc_suite import STILL_LEAD_MPS
@@ -197,8 +198,14 @@ def _group(rows: Sequence[Any], key: Callable[[Any], Any]) -> dict[Any, list[Any
 
 def run_string(out: Path, drivers: dict[str, Maker], *, followers: int = FOLLOWERS, seeds: Sequence[int] = LEAD_SEEDS) -> str:
     """Drive the suite for each driver (name -> maker); write ``out/string.md`` and ``out/string.json``; return the tables."""
-    gains = [g for name, make in drivers.items() for g in gain_rows(name, make)]
-    platoons = [p for name, make in drivers.items() for p in platoon_rows(name, make, seeds, followers)] if followers else []
+    gains: list[GainRow] = []
+    platoons: list[PlatoonRow] = []
+    with progress_bar(2 * len(drivers), "string", unit="part") as bar:
+        for name, make in drivers.items():
+            gains += gain_rows(name, make)
+            bar.update(1)
+            platoons += platoon_rows(name, make, seeds, followers)
+            bar.update(1)
     table = "\n".join(string_tables(gains, platoons)) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "string.md").write_text("# String stability on held-out leads\n\n" + table)
