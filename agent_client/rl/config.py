@@ -82,6 +82,7 @@ def single_stream_only(cfg: Config) -> tuple[str, str] | None:
             (cfg.train_traffic != TRAFFIC_PER_LANE, "train_traffic", f"--train-traffic {cfg.train_traffic}", "spawns servers with the default traffic"),
             (tuple(cfg.train_sun_elevation) != SUN_ELEVATION, "train_sun_elevation", "--train-sun-elevation", "spawns servers with the default sun"),
             (tuple(cfg.train_trajectories) != (RANDOM,), "train_trajectories", f"--train-trajectories {','.join(cfg.train_trajectories)}", "drives random leads only"),
+            (cfg.recurrent != "none", "recurrent", f"--recurrent {cfg.recurrent}", "stores no recurrent states"),
         )
         if wanted
     ]  # fmt: skip
@@ -531,7 +532,6 @@ def check_recurrent(cfg: Config) -> None:
     for field, used, what in (
         ("action", is_continuous(cfg.action), "the actor-critic (a DQN or DAgger learner only)"),
         ("n_step", cfg.n_step != 1, "n-step returns (one-step targets from the unrolled sequence)"),
-        ("servers", cfg.servers != 1, "the K-stream trainer"),
         ("brake_margin", cfg.brake_margin > 0.0, "a brake margin"),
         ("teacher", cfg.teacher == "policy", "a policy teacher (a law's labels only)"),
     ):  # fmt: skip

@@ -114,7 +114,7 @@ def test_a_memory_without_states_has_no_sequences_and_one_with_them_needs_them()
 
 
 @pytest.mark.parametrize(("change", "field"), [
-    (dict(action="continuous"), "action"), (dict(n_step=3), "n_step"), (dict(servers=2), "servers"),
+    (dict(action="continuous"), "action"), (dict(n_step=3), "n_step"), (dict(servers=2), "recurrent"),
     (dict(sequence_length=3), "sequence_length"), (dict(recurrent="lstm"), "recurrent"),
 ])  # fmt: skip
 def test_what_the_recurrent_trunk_does_not_do_is_refused_by_name(change, field):
