@@ -463,6 +463,8 @@ def narrow_policy(src: str | Path, dst: str | Path, conv_channels: tuple[int, in
     if Path(dst).exists():
         raise InputFileError(f"{dst}: exists; give a new file for the narrowed policy")
     q, cfg = load_policy(src)
+    if getattr(q, "recurrent", False):
+        raise InputFileError(f"{src}: a recurrent policy (--recurrent {cfg.recurrent}) cannot be narrowed: its GRU's widths are not cut down")
     old = (*(c.out_channels for c in q._convs), q._linears[0].out_features)
     new = (*conv_channels, hidden)
     if len(new) != 4 or not all(1 <= n <= o for n, o in zip(new, old, strict=True)):

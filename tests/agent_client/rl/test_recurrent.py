@@ -140,3 +140,17 @@ def test_a_recurrent_run_resumed_equals_an_uninterrupted_one_and_drives(tmp_path
         assert z["states"].shape[1] == 32 and z["states"].shape[0] > whole["steps"] and np.abs(z["states"]).sum() > 0
     net, loaded = load_policy(str(tmp_path / "whole" / "latest.pt"))
     assert isinstance(net, RecurrentQNetwork) and loaded.recurrent == "gru"
+
+
+def test_a_recurrent_policy_saves_loads_and_refuses_to_be_narrowed(tmp_path):
+    from agent_client.errors import InputFileError
+    from agent_client.rl.checkpoint import narrow_policy, save_policy
+
+    net = _net(3)
+    save_policy(net, TINY, tmp_path / "gru.pt")
+    loaded, cfg = load_policy(str(tmp_path / "gru.pt"))
+    assert isinstance(loaded, RecurrentQNetwork) and cfg.burn_in == 3
+    for name, t in net.state_dict().items():
+        assert torch.equal(loaded.state_dict()[name], t), name
+    with pytest.raises(InputFileError, match="recurrent policy .* cannot be narrowed"):
+        narrow_policy(tmp_path / "gru.pt", tmp_path / "narrow.pt", (2, 4, 4), 16)
