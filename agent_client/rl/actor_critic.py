@@ -59,6 +59,8 @@ class ActorCritic(nn.Module):
         hidden: units of the actor's and the critic's hidden layers.
     """
 
+    recurrent = False  # a frame stack only (the GRU trunk is the DQN's: --recurrent)
+
     def __init__(self, frame_stack: int = 8, speed_scale: float = 30.0, n_controls: int = 2,
                  conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256):  # fmt: skip
         super().__init__()

@@ -207,7 +207,7 @@ def test_the_teachers_are_the_acc_law_with_its_time_gap_or_the_papers_55_m():
         make_teacher("policy")  # a network, not a law: it needs its checkpoint
     assert set(TEACHERS) == {"none", "policy", "acc", "acc-55", "acc-55-gentle", "acc-55-gentle-margin", "acc-55-eco", "acc-55-eco-margin",
                              "acc-55-calm", "acc-55-calm-margin", "acc-55-calmer", "acc-55-calmer-margin",
-                             "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin", "platoon"}  # fmt: skip
+                             "eco", "eco-margin", "eco-mid", "eco-mid-margin", "eco-firm", "eco-firm-margin", "platoon", "platoon-calm"}  # fmt: skip
 
 
 def test_the_gentle_55_m_teacher_caps_its_braking_but_not_its_collision_avoidance():
