@@ -477,6 +477,8 @@ def evaluate(
         else:
             string_suite(Path(out), methods, model_files, followers, seeds)
         return None
+    if followers is not None:
+        raise click.BadParameter("sets the platoons' length of --suite openacc and --suite string only", param_hint="--followers")
     seed_list = _seed_list(seed, seeds, suite)
     road = Road(traffic, sun_elevation)
     if suite == "paper" and road.sun_elevation != SUN_ELEVATION:

@@ -75,3 +75,8 @@ def test_platoons_of_the_platoon_law_attenuate_and_hold_still_behind_a_still_lea
     moving, still = platoon_rows("platoon", law_maker("platoon"), seeds=(7002,), followers=4)
     assert moving.lead == "seed 7002" and moving.cars == 5 and not moving.collided and moving.min_gap_m > 2.0
     assert moving.speed_rms < 1.0 and still.lead == "still" and still.last_dev_rms < 0.01
+
+
+def test_followers_is_refused_by_the_suites_without_platoons(tmp_path):
+    done = CliRunner().invoke(main, ["evaluate", "--suite", "safety", "--followers", "3", "--out", str(tmp_path)])
+    assert done.exit_code == 2 and "--followers" in done.output and "openacc" in done.output
