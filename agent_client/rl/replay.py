@@ -159,7 +159,7 @@ class ReplayMemory:
     def warm(self, obs: dict[str, np.ndarray]) -> None:
         """Store a frame of the camera's pre-roll before the episode's first observation:
         the first stacks reach back into it, and it is never a transition's start."""
-        self._write(obs, self._warm, state=self.states[0] * 0.0 if len(self.states) else None)  # never a start: no state to keep
+        self._write(obs, self._warm, state=np.zeros(self.states.shape[1], np.float32) if len(self.states) else None)  # never a start: no state to keep
         self._warm += 1
 
     def start(self, obs: dict[str, np.ndarray], gap: float = np.nan, state: np.ndarray | None = None) -> None:
