@@ -34,9 +34,10 @@ import torch.nn.functional as F
 
 from agent_client.actions import EMERGENCY_LEVEL, FULL_BRAKE_TARGET, make_action_type
 from agent_client.preprocess import FRAME_H, FRAME_W
-from agent_client.rl.network import FIRM_BRAKE, Decision, batch_of_one, scale_frames
+from agent_client.rl.network import FIRM_BRAKE, Decision, batch_of_one, gru_cell, scale_frames
+from agent_client.rl.replay import flat_transitions
 
-__all__ = ["ActorCritic", "ActorPolicy", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
+__all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
            "network_of", "policy_of", "noise_std", "soft_update", "target_of"]
 
 CRITIC_NAME = "losses/critic"
@@ -59,7 +60,7 @@ class ActorCritic(nn.Module):
         hidden: units of the actor's and the critic's hidden layers.
     """
 
-    recurrent = False  # a frame stack only (the GRU trunk is the DQN's: --recurrent)
+    recurrent = False  # RecurrentActorCritic: a state carried from step to step
 
     def __init__(self, frame_stack: int = 8, speed_scale: float = 30.0, n_controls: int = 2,
                  conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256):  # fmt: skip
@@ -75,18 +76,24 @@ class ActorCritic(nn.Module):
         )  # fmt: skip
         with torch.no_grad():
             n_in = self.conv(torch.zeros(1, frame_stack, FRAME_H, FRAME_W)).shape[1] + frame_stack * (1 + n_controls)
-        self.fc = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, 1))  # the actor
-        self.critic_trunk = nn.Sequential(nn.Linear(n_in, hidden), nn.LayerNorm(hidden), nn.Tanh())
+        self._heads_on(n_in, hidden)
         self.q1 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
         self.q2 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
         self._convs: tuple[nn.Conv2d, ...] = tuple(m for m in self.conv if isinstance(m, nn.Conv2d))
         self._linears: tuple[nn.Linear, ...] = (self.fc[0], self.fc[2])  # type: ignore[assignment]
         self.gap_head = self.closing_head = None  # no auxiliary heads (the DDQN controller asks)
 
+    def _heads_on(self, width: int, hidden: int) -> None:
+        """The actor's and the critic's first layers, reading ``width`` features."""
+        self.fc = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, 1))  # the actor
+        self.critic_trunk = nn.Sequential(nn.Linear(width, hidden), nn.LayerNorm(hidden), nn.Tanh())
+
     @classmethod
     def of(cls, cfg: Any) -> ActorCritic:
-        """The network a :class:`~agent_client.rl.config.Config` with a continuous action describes."""
-        return cls(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden)
+        """The network a :class:`~agent_client.rl.config.Config` with a continuous action
+        describes (:class:`RecurrentActorCritic` with ``recurrent`` "gru")."""
+        kind = RecurrentActorCritic if getattr(cfg, "recurrent", "none") == "gru" else ActorCritic
+        return kind(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden)
 
     @property
     def device(self) -> torch.device:
@@ -119,6 +126,54 @@ class ActorCritic(nn.Module):
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """``[B, 1]`` the actor's target force: the decision path, one pass as the DQN's."""
         return self.actor(self.features(frames, speeds, controls))[:, None]
+
+
+class RecurrentActorCritic(ActorCritic):
+    """:class:`ActorCritic` over a GRU, the recurrent trunk of
+    :class:`~agent_client.rl.network.RecurrentQNetwork` for the actor-critic.
+
+    conv over the stack -> encoder (hidden, ReLU) -> GRU (hidden) -> the actor and the critic
+
+    The GRU's output ``h`` is what the actor and the critic read, as ``z`` in
+    :class:`ActorCritic`: the critic's gradient trains it, the actor reads it detached. The
+    state starts at zero with each episode, and a replayed sequence is unrolled from the state
+    stored with its first step (R2D2). Called without a state it refuses.
+    """
+
+    recurrent = True
+
+    def _heads_on(self, width: int, hidden: int) -> None:
+        self.encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU())
+        self.gru = nn.GRU(hidden, hidden, batch_first=True)
+        super()._heads_on(hidden, hidden)
+
+    @property
+    def state_size(self) -> int:
+        return self.gru.hidden_size
+
+    def initial_state(self, batch: int = 1) -> torch.Tensor:
+        """The state at an episode's start: zeros ``[batch, hidden]``."""
+        return torch.zeros(batch, self.gru.hidden_size, device=self.device)
+
+    def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
+        raise TypeError("a recurrent network decides from its state: use step() or unroll(), or drive it through ActorPolicy")
+
+    def step(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step of ``B`` observations from ``state`` ``[B, hidden]``: the actor's target ``[B]`` and the new state."""
+        h = gru_cell(self.gru, self.encoder(self.features(frames, speeds, controls)), state)  # [B, H]
+        return self.actor(h), h
+
+    def unroll(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor,
+               conv_grad: bool = True) -> torch.Tensor:  # fmt: skip
+        """The GRU's outputs ``[B, L, hidden]`` over ``B`` sequences of ``L`` observations (frames
+        ``[B, L, S, H, W]``, speeds ``[B, L, S]``, controls ``[B, L, S, C]``) from ``state``
+        ``[B, hidden]``; ``conv_grad`` False keeps the convolutions out of the graph."""
+        b, n = frames.shape[:2]
+        flat = None if controls is None or not self.n_controls else controls.flatten(0, 1)
+        with torch.set_grad_enabled(conv_grad and torch.is_grad_enabled()):
+            z = self.features(frames.flatten(0, 1), speeds.flatten(0, 1), flat)  # [B L, n_in]
+        out, _ = self.gru(self.encoder(z).view(b, n, -1), state[None])
+        return out
 
 
 # ------------------------------------------------------------------------ augmentation
@@ -184,6 +239,25 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
     z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
+    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log)
+
+
+def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, optimizer: torch.optim.Optimizer, seq: Any,
+                     cfg: Any, std: float, device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+    """:func:`update` on replayed sequences (:class:`~agent_client.rl.replay.SequenceSamples`)
+    for the recurrent trunk: each sequence shifted as one, unrolled from its stored state, and
+    the one-step losses taken on its steps past the burn-in (R2D2)."""
+    frames = scale_frames(seq.frames.to(device))  # [B, L + 1, S, H, W]
+    frames = random_shift(frames.flatten(1, 2), cfg.shift_pad).view(frames.shape)  # one shift for a whole sequence
+    h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
+    keep = seq.train.to(device)  # [B, L]
+    return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log)
+
+
+def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, z: torch.Tensor, next_z: torch.Tensor,
+             b: Any, cfg: Any, std: float, device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+    """The losses and the step of :func:`update` on features ``z`` (with the graph) and ``next_z`` (without)."""
+    with torch.no_grad():
         noise = (torch.randn(len(next_z), device=device) * std).clamp(-cfg.noise_clip, cfg.noise_clip)  # [B]
         next_a = (net.actor(next_z) + noise).clamp(-1.0, 1.0)  # [B] target policy smoothing
         tq1, tq2 = target.critic(next_z, next_a)
@@ -241,25 +315,39 @@ def target_of(net: ActorCritic) -> ActorCritic:
 class ActorPolicy:
     """The actor's decision: its target force, rounded to float32 as the env applies it
     (:class:`~agent_client.rl.network.Decision`'s ``continuous``); the full brake where that
-    target is at or below :data:`~agent_client.actions.FULL_BRAKE_TARGET`, by the action type."""
+    target is at or below :data:`~agent_client.actions.FULL_BRAKE_TARGET`, by the action type.
+    A recurrent actor's state steps on with each observation and starts at zero with each episode."""
 
     def __init__(self, net: ActorCritic):
         self.q = net
+        self._state: torch.Tensor | None = None  # a recurrent actor's state; None: the episode's start (zeros)
 
     def reset(self) -> None:
-        """No state between decisions."""
+        """Forget the episode: a recurrent actor's state (the frame stack has none here)."""
+        self._state = None
 
-    def state(self) -> None:
-        """No recurrent state (:meth:`agent_client.rl.network.Policy.state`)."""
-        return None
+    def state(self) -> np.ndarray | None:
+        """A recurrent actor's state before the next observation ``[hidden]`` (float32), else None
+        (:meth:`agent_client.rl.network.Policy.state`)."""
+        if not isinstance(self.q, RecurrentActorCritic):
+            return None
+        if self._state is None:
+            return np.zeros(self.q.state_size, np.float32)
+        return self._state[0].detach().cpu().numpy().astype(np.float32, copy=True)
 
     def fresh(self) -> ActorPolicy:
-        return self
+        """A policy of the same network at an episode's start (stateless: this one)."""
+        return ActorPolicy(self.q) if self.q.recurrent else self
 
     def target(self, obs: dict[str, Any]) -> float:
-        """The actor's target force for one stacked observation."""
+        """The actor's target force for one stacked observation (a recurrent actor's state steps on)."""
         with torch.inference_mode():
-            return float(self.q(*batch_of_one(self.q, obs["frames"], obs["speeds"], obs.get("controls")))[0, 0])  # type: ignore[arg-type]
+            inputs = batch_of_one(self.q, obs["frames"], obs["speeds"], obs.get("controls"))  # type: ignore[arg-type]
+            if not isinstance(self.q, RecurrentActorCritic):
+                return float(self.q(*inputs)[0, 0])
+            state = self.q.initial_state(1) if self._state is None else self._state
+            out, self._state = self.q.step(*inputs, state)
+            return float(out[0])
 
     def __call__(self, obs: dict[str, Any]) -> Decision:
         return Decision(0, None, float(np.float32(self.target(obs))))
@@ -303,12 +391,20 @@ def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: n
     (:func:`student_targets`) on a replay batch; returns the mean squared error.
 
     The actor's tanh never reaches -1: a full-brake label is asked as the continuous type's
-    :data:`~agent_client.actions.FULL_BRAKE_TARGET`, which brakes fully as well.
+    :data:`~agent_client.actions.FULL_BRAKE_TARGET`, which brakes fully as well. The
+    convolutions stay as copied; a recurrent actor clones on replayed sequences
+    (:class:`~agent_client.rl.replay.SequenceSamples`), its encoder and GRU learning with it.
     """
-    frames, speeds, controls = b.frames.to(device), b.speeds.to(device), b.controls.to(device)
+    if isinstance(net, RecurrentActorCritic):
+        keep = b.train.to(device)  # [B, L]
+        frames, speeds, controls = (t.to(device)[:, :-1][keep] for t in (b.frames, b.speeds, b.controls))  # the trained steps
+        h = net.unroll(b.frames.to(device), b.speeds.to(device), b.controls.to(device), b.states.to(device), conv_grad=False)
+        z = h[:, :-1][keep]  # [N, H]
+    else:
+        frames, speeds, controls = b.frames.to(device), b.speeds.to(device), b.controls.to(device)
+        with torch.no_grad():
+            z = net.features(frames, speeds, controls)  # the trunk as copied; the clone trains the actor
     y = student_targets(student, student_cfg, frames, speeds, controls).clamp(min=FULL_BRAKE_TARGET - 0.01)  # [B]
-    with torch.no_grad():
-        z = net.features(frames, speeds, controls)  # the trunk as copied; the clone trains the actor
     loss = F.mse_loss(net.actor(z), y)
     optimizer.zero_grad()
     loss.backward()

@@ -530,7 +530,6 @@ def check_recurrent(cfg: Config) -> None:
     if cfg.recurrent == "none":
         return
     for field, used, what in (
-        ("action", is_continuous(cfg.action), "the actor-critic (a DQN or DAgger learner only)"),
         ("n_step", cfg.n_step != 1, "n-step returns (one-step targets from the unrolled sequence)"),
         ("brake_margin", cfg.brake_margin > 0.0, "a brake margin"),
         ("teacher", cfg.teacher == "policy", "a policy teacher (a law's labels only)"),

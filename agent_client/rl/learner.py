@@ -50,8 +50,14 @@ from agent_client.rl.checkpoint import (
 from agent_client.rl.config import RESUMABLE_CHANGES, Config, config_dict
 from agent_client.rl.evaluation import eval_episode, evaluate, score
 from agent_client.rl.losses import Forward, build_terms, imitation, td, weighted_sum
-from agent_client.rl.network import Decision, Policy, QNetwork, transfer_weights
-from agent_client.rl.replay import ReplayMemory, ReplaySamples, SequenceSamples, StreamReplay
+from agent_client.rl.network import Decision, Policy, QNetwork, RecurrentQNetwork, transfer_weights
+from agent_client.rl.replay import (
+    ReplayMemory,
+    ReplaySamples,
+    SequenceSamples,
+    StreamReplay,
+    flat_transitions,
+)
 from agent_client.rl.scalars import ScalarLog
 from agent_client.rl.stop import STOP
 from agent_client.rl.teachers import teacher_law
@@ -150,20 +156,6 @@ class PolicyTeacher:
         holds the student's force)."""
         d = self.policy(obs)
         return d, d.action if d.target is None else held.imitate(d.target, hard_brake)
-
-
-def _flat_transitions(seq: SequenceSamples, gamma: float) -> ReplaySamples:
-    """The trained steps of replayed sequences as one batch of one-step transitions, for the
-    loss terms (no frames: the recurrent update has unrolled them already)."""
-    keep = seq.train
-    none = torch.empty(0)
-    rewards = seq.rewards[keep]
-    return ReplaySamples(
-        indices=seq.indices, frames=none, speeds=seq.speeds[:, :-1][keep], controls=seq.controls[:, :-1][keep], actions=seq.actions[keep],
-        rewards=rewards, returns=rewards, discounts=torch.full_like(rewards, gamma), terminal_rewards=rewards,
-        terminated=seq.terminated[keep], truncated=seq.truncated[keep], next_frames=none, next_speeds=seq.speeds[:, 1:][keep],
-        next_controls=seq.controls[:, 1:][keep], gaps=seq.gaps[keep], next_gaps=seq.next_gaps[keep],
-    )  # fmt: skip
 
 
 class Learner:
@@ -281,6 +273,8 @@ class Learner:
         if cfg.init_from is None:
             return
         init_q, init_cfg = load_policy(cfg.init_from)
+        if cfg.bc_steps > 0 and init_q.recurrent:
+            raise InputFileError(f"{cfg.init_from}: a recurrent network; bc_steps clones a frame-stack student's decision")
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
         widths = [(",".join(map(str, c.conv_channels)), c.hidden) for c in (init_cfg, cfg)]
@@ -386,17 +380,18 @@ class Learner:
     def _update_recurrent(self, seq: SequenceSamples, log_step: int | None) -> UpdateLosses | None:
         """One step on replayed sequences (R2D2): unroll the online and target networks from
         each sequence's stored state; the loss terms read the steps past the burn-in."""
-        dev, cfg = self.device, self.cfg
+        dev, cfg, net, target = self.device, self.cfg, self.q, self.target
+        assert isinstance(net, RecurrentQNetwork) and isinstance(target, RecurrentQNetwork)
         frames, speeds, controls, states = seq.frames.to(dev), seq.speeds.to(dev), seq.controls.to(dev), seq.states.to(dev)
-        q_all, gap_all, closing_all, _ = self.q.unroll(frames, speeds, controls, states)  # type: ignore[attr-defined]  # [B, L + 1, A]
+        q_all, gap_all, closing_all, _ = net.unroll(frames, speeds, controls, states)  # [B, L + 1, A]
         keep = seq.train.to(dev)  # [B, L]
         next_q = None
         if self.teacher is None:
             with torch.no_grad():
-                target_all = self.target.unroll(frames, speeds, controls, states)[0]  # type: ignore[attr-defined]
+                target_all = target.unroll(frames, speeds, controls, states)[0]
             next_q = (q_all[:, 1:][keep].detach(), target_all[:, 1:][keep])
         q = q_all[:, :-1][keep]  # [N, A]
-        flat = _flat_transitions(seq, cfg.gamma)
+        flat = flat_transitions(seq, cfg.gamma)
         q_taken = q.gather(1, flat.actions.to(dev)[:, None]).squeeze(1)
         heads = [None if h is None else h[:, :-1][keep] for h in (gap_all, closing_all)]
         total, values = weighted_sum(self.loss_terms, Forward(flat, dev, q, q_taken, heads[0], heads[1], next_q))
@@ -419,9 +414,11 @@ class Learner:
             return memory.sample_sequences(cfg.batch_size, self.rng, cfg.sequence_length, cfg.burn_in)  # type: ignore[union-attr]
         return memory.sample(cfg.batch_size, self.rng, cfg.n_step, cfg.gamma)
 
-    def _update_actor_critic(self, b: ReplaySamples, log_step: int | None) -> UpdateLosses | None:
-        """One DrQ-v2 step (:func:`agent_client.rl.actor_critic.update`), its noise at ``_std``."""
-        losses = ac.update(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None)  # type: ignore[arg-type]
+    def _update_actor_critic(self, b: ReplaySamples | SequenceSamples, log_step: int | None) -> UpdateLosses | None:
+        """One DrQ-v2 step (:func:`agent_client.rl.actor_critic.update`, or ``update_sequences``
+        for the recurrent trunk), its noise at ``_std``."""
+        step = ac.update_sequences if isinstance(b, SequenceSamples) else ac.update
+        losses = step(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None)  # type: ignore[arg-type]
         self.updates += 1
         return None if losses is None else UpdateLosses(losses.critic, losses.q_values, {ac.ACTOR_NAME: losses.actor})
 
@@ -429,7 +426,11 @@ class Learner:
         """The behaviour-cloning warm start: ``bc_steps`` steps of the actor on the
         ``init_from`` student's decision on replayed frames; the mean error logged at ``step``."""
         student, student_cfg = load_policy(str(self.cfg.init_from), self.device)
-        errors = [ac.clone_student(self.q, self.optimizer, student, student_cfg, memory.sample(self.cfg.batch_size, self.rng),  # type: ignore[arg-type]
+
+        def batch() -> ReplaySamples | SequenceSamples:
+            return self._sample(memory) if self.q.recurrent else memory.sample(self.cfg.batch_size, self.rng)
+
+        errors = [ac.clone_student(self.q, self.optimizer, student, student_cfg, batch(),  # type: ignore[arg-type]
                                    self.device, self.cfg.max_grad_norm) for _ in range(self.cfg.bc_steps)]  # fmt: skip
         self.log.add(ac.BC_NAME, float(np.mean(errors)), step)
         self._bc_pending = False

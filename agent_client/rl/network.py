@@ -214,14 +214,7 @@ class RecurrentQNetwork(QNetwork):
     def step(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
         """One step of ``B`` observations (as :meth:`QNetwork.forward`'s) from ``state``
         ``[B, hidden]``: the outputs ``[B, A]``, the heads' raw outputs ``[B]`` (or None) and the new state."""
-        x = self._hidden(frames, speeds, controls)  # [B, H]
-        # nn.GRU's cell written out: at batch 1 the module's own call costs more than its arithmetic
-        g = self.gru
-        xr, xz, xn = F.linear(x, g.weight_ih_l0, g.bias_ih_l0).chunk(3, 1)
-        hr, hz, hn = F.linear(state, g.weight_hh_l0, g.bias_hh_l0).chunk(3, 1)
-        r, z = torch.sigmoid(xr + hr), torch.sigmoid(xz + hz)
-        n = torch.tanh(xn + r * hn)
-        h = n + z * (state - n)  # (1 - z) n + z h
+        h = gru_cell(self.gru, self._hidden(frames, speeds, controls), state)  # [B, H]
         return (*self._heads(h), h)
 
     def unroll(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None, state: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
@@ -238,6 +231,18 @@ class RecurrentQNetwork(QNetwork):
         out = self._linears[1]
         heads = [None if h is None else F.linear(z, h.weight, h.bias)[..., 0] for h in (self.gap_head, self.closing_head)]
         return F.linear(z, out.weight, out.bias), heads[0], heads[1]
+
+
+def gru_cell(gru: nn.GRU, x: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+    """One step of a one-layer ``gru`` on inputs ``x`` ``[B, in]`` from ``state`` ``[B, hidden]``:
+    the new state. nn.GRU's cell written out: at batch 1 the module's own call costs more
+    than its arithmetic."""
+    w_ih, w_hh, b_ih, b_hh = gru.all_weights[0]
+    xr, xz, xn = F.linear(x, w_ih, b_ih).chunk(3, 1)
+    hr, hz, hn = F.linear(state, w_hh, b_hh).chunk(3, 1)
+    r, z = torch.sigmoid(xr + hr), torch.sigmoid(xz + hz)
+    n = torch.tanh(xn + r * hn)
+    return n + z * (state - n)  # (1 - z) n + z h
 
 
 def batch_of_one(q: QNetwork, frames: np.ndarray | torch.Tensor, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
@@ -388,10 +393,10 @@ class Policy:
     def state(self) -> np.ndarray | None:
         """A recurrent network's state before the next observation ``[hidden]`` (float32,
         a copy: what the replay memory stores with that observation); None for a frame stack."""
-        if not self.q.recurrent:
+        if not isinstance(self.q, RecurrentQNetwork):
             return None
         if self._state is None:
-            return np.zeros(self.q.state_size, np.float32)  # type: ignore[attr-defined]
+            return np.zeros(self.q.state_size, np.float32)
         return self._state[0].detach().cpu().numpy().astype(np.float32, copy=True)
 
     def outputs(self, frames: Any, speeds: np.ndarray, controls: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
@@ -399,10 +404,10 @@ class Policy:
         observation; a recurrent network's state steps on."""
         with torch.inference_mode():
             inputs = batch_of_one(self.q, frames, speeds, controls)
-            if not self.q.recurrent:
+            if not isinstance(self.q, RecurrentQNetwork):
                 return self.q.with_heads(*inputs)
-            state = self.q.initial_state(1) if self._state is None else self._state  # type: ignore[attr-defined]
-            q, gap, closing, self._state = self.q.step(*inputs, state)  # type: ignore[attr-defined]
+            state = self.q.initial_state(1) if self._state is None else self._state
+            q, gap, closing, self._state = self.q.step(*inputs, state)
             return q, gap, closing
 
     def fresh(self) -> Policy:

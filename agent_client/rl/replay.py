@@ -18,7 +18,7 @@ import torch
 from agent_client.errors import InputFileError
 from agent_client.preprocess import FRAME_H, FRAME_W
 
-__all__ = ["ReplayMemory", "ReplaySamples", "SequenceSamples", "StreamReplay"]
+__all__ = ["ReplayMemory", "ReplaySamples", "SequenceSamples", "StreamReplay", "flat_transitions"]
 
 
 class ReplaySamples(NamedTuple):
@@ -57,7 +57,7 @@ class SequenceSamples(NamedTuple):
     frames: torch.Tensor  # [B, L + 1, S, H, W] uint8
     speeds: torch.Tensor  # [B, L + 1, S] float32 [m/s]
     controls: torch.Tensor  # [B, L + 1, S, C] float32
-    actions: torch.Tensor  # [B, L] int64
+    actions: torch.Tensor  # [B, L] int64 (float32: the continuous action type's target forces)
     rewards: torch.Tensor  # [B, L] float32
     terminated: torch.Tensor  # [B, L] bool
     truncated: torch.Tensor  # [B, L] bool
@@ -289,7 +289,7 @@ class ReplayMemory:
         return SequenceSamples(
             indices=idx, states=torch.from_numpy(self.states[idx % self.capacity]), frames=frames,
             speeds=torch.from_numpy(self.speeds[stacks].reshape(shape)), controls=torch.from_numpy(self.controls[stacks].reshape(*shape, -1)),
-            actions=torch.from_numpy(self.actions[jt].astype(np.int64)), rewards=torch.from_numpy(self.rewards[jt]),
+            actions=torch.from_numpy(self.actions[jt] if self.actions.dtype == np.float32 else self.actions[jt].astype(np.int64)), rewards=torch.from_numpy(self.rewards[jt]),
             terminated=torch.from_numpy(self.terminated[jt] & alive), truncated=torch.from_numpy(self.truncated[jt] & alive),
             gaps=torch.from_numpy(gaps), next_gaps=torch.from_numpy(next_gaps), mask=torch.from_numpy(alive), train=torch.from_numpy(train),
         )  # fmt: skip
@@ -453,3 +453,17 @@ class StreamReplay:
             saved = m.load(run_dir / name)
             if saved != step:
                 raise InputFileError(f"{run_dir / name}: saved at step {saved}, but latest.pt is at step {step}")
+
+
+def flat_transitions(seq: SequenceSamples, gamma: float) -> ReplaySamples:
+    """The trained steps of replayed sequences as one batch of one-step transitions, for the
+    loss terms (no frames: the recurrent update has unrolled them already)."""
+    keep = seq.train
+    none = torch.empty(0)
+    rewards = seq.rewards[keep]
+    return ReplaySamples(
+        indices=seq.indices, frames=none, speeds=seq.speeds[:, :-1][keep], controls=seq.controls[:, :-1][keep], actions=seq.actions[keep],
+        rewards=rewards, returns=rewards, discounts=torch.full_like(rewards, gamma), terminal_rewards=rewards,
+        terminated=seq.terminated[keep], truncated=seq.truncated[keep], next_frames=none, next_speeds=seq.speeds[:, 1:][keep],
+        next_controls=seq.controls[:, 1:][keep], gaps=seq.gaps[keep], next_gaps=seq.next_gaps[keep],
+    )  # fmt: skip

@@ -3,17 +3,21 @@ sequences with stored states and burn-in (R2D2), training and resuming over real
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import numpy as np
 import pytest
 import torch
+from click.testing import CliRunner
 
-from agent_client.rl.checkpoint import load_policy
+from agent_client.rl import actor_critic as ac
+from agent_client.rl.checkpoint import load_policy, save_policy
 from agent_client.rl.config import Config, ConfigError
 from agent_client.rl.network import Policy, QNetwork, RecurrentQNetwork
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
+from vacc.cli import main
 
 H, W = 105, 150
 GRU = dict(recurrent="gru", frame_stack=2, stack_stride=1, burn_in=3, sequence_length=6)
@@ -114,7 +118,7 @@ def test_a_memory_without_states_has_no_sequences_and_one_with_them_needs_them()
 
 
 @pytest.mark.parametrize(("change", "field"), [
-    (dict(action="continuous"), "action"), (dict(n_step=3), "n_step"), (dict(servers=2), "recurrent"),
+    (dict(n_step=3), "n_step"), (dict(servers=2), "recurrent"),
     (dict(sequence_length=3), "sequence_length"), (dict(recurrent="lstm"), "recurrent"),
 ])  # fmt: skip
 def test_what_the_recurrent_trunk_does_not_do_is_refused_by_name(change, field):
@@ -144,7 +148,7 @@ def test_a_recurrent_run_resumed_equals_an_uninterrupted_one_and_drives(tmp_path
 
 def test_a_recurrent_policy_saves_loads_and_refuses_to_be_narrowed(tmp_path):
     from agent_client.errors import InputFileError
-    from agent_client.rl.checkpoint import narrow_policy, save_policy
+    from agent_client.rl.checkpoint import narrow_policy
 
     net = _net(3)
     save_policy(net, TINY, tmp_path / "gru.pt")
@@ -154,3 +158,95 @@ def test_a_recurrent_policy_saves_loads_and_refuses_to_be_narrowed(tmp_path):
         assert torch.equal(loaded.state_dict()[name], t), name
     with pytest.raises(InputFileError, match="recurrent policy .* cannot be narrowed"):
         narrow_policy(tmp_path / "gru.pt", tmp_path / "narrow.pt", (2, 4, 4), 16)
+
+
+# ------------------------------------------------------------- the actor-critic's GRU
+
+AC = dataclasses.replace(TINY, action="continuous", total_steps=100, batch_size=4, n_step=1)
+
+
+def _ac(seed: int = 0) -> ac.RecurrentActorCritic:
+    torch.manual_seed(seed)
+    net = ac.network_of(AC)
+    assert isinstance(net, ac.RecurrentActorCritic)
+    return net.eval()
+
+
+def _ac_obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    return {**_obs(rng), "controls": rng.uniform(-1, 1, (2, 2)).astype(np.float32)}
+
+
+def test_the_recurrent_actor_steps_as_it_unrolls_and_its_policy_forgets_with_the_episode():
+    net, rng = _ac(), np.random.default_rng(4)
+    seq = [_ac_obs(rng) for _ in range(5)]
+    frames, speeds, controls = (torch.from_numpy(np.stack([o[k] for o in seq]))[None] for k in ("frames", "speeds", "controls"))
+    with torch.no_grad():
+        h_all = net.unroll(frames, speeds, controls, net.initial_state(1))  # [1, 5, H]
+        h = net.initial_state(1)
+        for k in range(5):
+            a, h = net.step(frames[:, k], speeds[:, k], controls[:, k], h)
+            torch.testing.assert_close(h, h_all[:, k], rtol=1e-5, atol=1e-6)
+            torch.testing.assert_close(a, net.actor(h_all[:, k]), rtol=1e-5, atol=1e-6)
+    with pytest.raises(TypeError, match="state"):
+        net(frames[:, 0], speeds[:, 0], controls[:, 0])
+    policy = ac.policy_of(net, AC)
+    cold = policy(seq[-1]).continuous
+    assert policy.state().any() and policy.fresh() is not policy and not policy.fresh().state().any()
+    policy.reset()
+    for o in seq[:-1]:
+        policy(o)
+    assert policy(seq[-1]).continuous != cold  # what came before changes the answer
+    policy.reset()
+    assert not policy.state().any() and policy(seq[-1]).continuous == cold  # to the bit
+
+
+def test_a_sequence_update_trains_trunk_gru_actor_and_critic_and_moves_only_the_critics_target():
+    rng = np.random.default_rng(5)
+    mem = ReplayMemory(200, 2, 1, n_controls=2, continuous=True, state_size=32)
+    mem.start(_ac_obs(rng), state=np.zeros(32, np.float32))
+    for i in range(60):
+        mem.add(float(np.float32(rng.uniform(-1, 1))), float(rng.normal()), False, i % 20 == 19, _ac_obs(rng), state=rng.normal(size=32).astype(np.float32))
+        if i % 20 == 19:
+            mem.start(_ac_obs(rng), state=np.zeros(32, np.float32))
+    seq = mem.sample_sequences(4, rng, 6, 3)
+    assert seq.actions.dtype == torch.float32  # target forces, not rounded to levels
+    net = _ac(1).train()
+    target = ac.target_of(net)
+    before, target_before = ({k: v.clone() for k, v in m.state_dict().items()} for m in (net, target))
+    losses = ac.update_sequences(net, target, torch.optim.Adam(net.parameters(), 1e-3), seq, AC, 0.2, torch.device("cpu"), True)
+    assert losses is not None and np.isfinite(losses.critic) and np.isfinite(losses.actor)
+    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    assert {"conv.0.weight", "encoder.0.weight", "gru.weight_hh_l0", "fc.0.weight", "critic_trunk.0.weight", "q1.0.weight"} <= moved
+    target_moved = {k.split(".")[0] for k, v in target.state_dict().items() if not torch.equal(v, target_before[k])}
+    assert target_moved == {"critic_trunk", "q1", "q2"}
+
+
+@pytest.mark.integration
+def test_a_recurrent_actor_critic_cloned_from_a_student_resumes_bit_exact_and_drives(tmp_path):
+    student_cfg = Config(action="ramp-fine", frame_stack=2, stack_stride=1, conv_channels=(4, 8, 8), hidden=32)
+    torch.manual_seed(3)
+    save_policy(QNetwork.of(student_cfg), student_cfg, tmp_path / "student.pt")
+    cfg = dataclasses.replace(AC, init_from=str(tmp_path / "student.pt"), bc_steps=10, train_trajectories=("stopped", "random"))
+    whole = train(cfg, tmp_path / "whole", progress=False)
+    train(dataclasses.replace(cfg, total_steps=60), tmp_path / "split", progress=False)
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = (torch.load(tmp_path / d / "latest.pt", weights_only=True) for d in ("whole", "split"))
+    assert whole["steps"] == 100 and a["state"]["updates"] > 0 and any(k.startswith("gru.") for k in a["model"])
+    for part in ("model", "target"):
+        for key in a[part]:
+            torch.testing.assert_close(a[part][key], b[part][key], rtol=0, atol=0)
+    with np.load(tmp_path / "whole" / a["replay"][0]) as z:
+        assert z["states"].shape[1] == 32 and np.abs(z["states"]).sum() > 0
+    net, loaded = load_policy(str(tmp_path / "whole" / "latest.pt"))
+    assert isinstance(net, ac.RecurrentActorCritic) and loaded.recurrent == "gru"
+    log = tmp_path / "drive.csv"  # vacc drive: the recurrent actor drives, its forces ramped
+    result = CliRunner().invoke(main, ["drive", "--controller", "ddqn", "--checkpoint", str(tmp_path / "whole" / "latest.pt"),
+                                       "--trajectory", "test-1", "--duration", "3", "--log", str(log), "--quiet"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    forces = [float(r["force"]) for r in csv.DictReader(open(log)) if r.get("force")]
+    assert len(forces) > 20 and len(set(forces)) > 1
+    # a recurrent network is no student to clone: refused before anything runs
+    from agent_client.errors import InputFileError
+
+    with pytest.raises(InputFileError, match="recurrent network; bc_steps"):
+        train(dataclasses.replace(cfg, init_from=str(tmp_path / "whole" / "latest.pt")), tmp_path / "again", progress=False)
