@@ -26,6 +26,7 @@ import numpy as np
 from agent_client.launcher import local_server
 from agent_client.progress import progress_bar
 from agent_client.session import Session
+from vacc.host import cpu_model
 from vacc.paths import models_dir
 
 ECHO_SERVER = """
@@ -392,16 +393,6 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 class Sizes(NamedTuple):
     """How much each part of the bench measures: its steps, repetitions and sample counts."""
 
@@ -535,7 +526,7 @@ def run_bench(size: str) -> dict[str, Any]:
     return {
         "header": {
             "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "cpu": _cpu(),
+            "cpu": cpu_model(),
             "cores": os.cpu_count(),
             "quick": z.name != "full",
             "size": z.name,

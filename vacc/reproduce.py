@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +39,13 @@ from agent_client.rl.checkpoint import (
     with_decision,
 )
 from agent_client.rl.config import Config, single_stream_only
+from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
+from vacc.host import describe, label
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
-__all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command"]
+__all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
+           "timing_line", "duration"]
 
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
@@ -144,6 +148,7 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     sdir.mkdir(parents=True, exist_ok=True)
     dst.unlink(missing_ok=True)  # a stage stopped after its write and before done.json: made again, the same
     inputs = {name: str(out / name / f"{name}.pt") for name in stage_refs(stage)}
+    t0 = time.perf_counter()
     try:
         if stage.kind == "train":
             export_policy(_train_stage(recipe, stage, sdir, inputs, opts), dst)
@@ -151,6 +156,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
             _surgery_stage(stage, inputs, dst)
     except (ClientError, ValueError) as exc:
         raise click.ClickException(f"stage {stage.name}: {exc}") from None
+    # a train stage's time over all its sessions (its scalars restart with each resume); a surgery stage's now
+    wall_s = logged_wall_s(sdir / "run") if stage.kind == "train" else time.perf_counter() - t0
     # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by the SHA-256 of
     # their weights (their files also record paths) and by their paths relative to the output
     # folder, so that a run records the same lineage in any folder.
@@ -158,7 +165,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     made = {"name": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
     lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
     stamp_lineage(dst, lineage)
-    record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst)}
+    record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
+              "wall_s": round(wall_s, 1), "host": describe()}  # fmt: skip
     record_file.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
@@ -208,7 +216,31 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     shutil.copyfile(out / last / f"{last}.pt", final)
     if STOP.is_set():
         raise KeyboardInterrupt
-    return evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
+    t0 = time.perf_counter()
+    report = evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
+    stages = {name: {"kind": r["kind"], "wall_s": r.get("wall_s"), "host": r.get("host")} for name, r in done.items()}
+    timing = {"stages": stages, "gates_s": round(time.perf_counter() - t0, 1), "gates_host": describe(), "smoke": smoke}
+    timing["total_s"] = None if any(v["wall_s"] is None for v in stages.values()) else round(sum(v["wall_s"] for v in stages.values()) + timing["gates_s"], 1)
+    (out / "timing.json").write_text(json.dumps(timing, indent=1) + "\n")
+    report["timing"] = timing
+    return report
+
+
+def duration(seconds: float) -> str:
+    """``3 h 05 min``, ``14 min 10 s`` or ``0.4 s``."""
+    if seconds >= 3600:
+        return f"{int(seconds // 3600)} h {int(seconds % 3600 // 60):02d} min"
+    if seconds >= 60:
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s"
+    return f"{seconds:.1f} s"
+
+
+def timing_line(timing: dict[str, Any]) -> str:
+    """The wall-clock of a run in one line: each stage, the gates, the total, and the machines."""
+    parts = [f"{name} {'?' if v['wall_s'] is None else duration(v['wall_s'])}" for name, v in timing["stages"].items()]
+    hosts = {label(v["host"]) for v in timing["stages"].values() if v["host"]} | {label(timing["gates_host"])}
+    total = "?" if timing["total_s"] is None else duration(timing["total_s"])
+    return f"wall-clock: {', '.join(parts)}, gates {duration(timing['gates_s'])}; total {total} on {' / '.join(sorted(hosts))}"
 
 
 @click.command("reproduce")
@@ -222,7 +254,8 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
 @click.option("--quiet", is_flag=True, help="No progress lines.")
 def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, quiet: bool) -> None:
     """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
-    order into OUT/<stage>/, then OUT/<model>.pt and its gate report. Stopped at any point
+    order into OUT/<stage>/, then OUT/<model>.pt, its gate report and its wall-clock
+    (OUT/timing.json). Stopped at any point
     (Ctrl-C, kill -9), the same command continues. Exits 1 if a gate fails (not with --smoke)."""
     from vacc.gates import gate_table
 
@@ -239,6 +272,7 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
             click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
             raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
-    click.echo(f"Wrote {out}/{recipe.name}.pt and {out}/gates/gates.json")
+    click.echo(timing_line(report["timing"]))
+    click.echo(f"Wrote {out}/{recipe.name}.pt, {out}/gates/gates.json and {out}/timing.json")
     if not report["passed"] and not smoke:
         raise SystemExit(1)

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ScalarLog", "Progress"]
+__all__ = ["ScalarLog", "Progress", "logged_wall_s"]
 
 FLUSH_EVERY_S = 10.0  # [s] scalars.csv reaches the disk at least this often while rows come
 
@@ -61,6 +61,23 @@ def _rows_up_to(path: Path, step: int, episodes: int | None = None) -> list[list
     if episodes is not None and (logged := sum(r[1] == EPISODE_ROW for r in kept)) != episodes:
         raise InputFileError(f"{path}: {logged} episodes logged up to step {step}, latest.pt counts {episodes}: the file is cut or of another run")
     return kept
+
+
+def logged_wall_s(run_dir: Path) -> float:
+    """[s] The wall time a run's ``scalars.csv`` spans: its rows' ``wall_s`` restart at 0 with
+    each resume, so the last value of each run segment, summed. A resume drops the rows it
+    redoes, so a run stopped and resumed counts about what it would have taken at once.
+
+    Raises:
+        InputFileError: see :func:`_rows_up_to`.
+    """
+    total = last = 0.0
+    for row in _rows_up_to(run_dir / "scalars.csv", 2**62):
+        wall = float(row[3])
+        if wall < last:  # a resumed segment starts again
+            total += last
+        last = wall
+    return total + last
 
 
 class ScalarLog:

@@ -56,6 +56,12 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     for stage_dir in (p for p in folder.iterdir() if (p / "done.json").is_file()):
         done = json.loads((stage_dir / "done.json").read_text())
         assert done["stage"] == stage_dir.name and all(len(p["sha256"]) == 64 for p in done["parents"])
+        assert done["wall_s"] >= 0.0 and done["host"]["cores"] >= 1
+    # the wall-clock per stage and in all, recorded and printed
+    timing = json.loads((folder / "timing.json").read_text())
+    trained = [v["wall_s"] for v in timing["stages"].values() if v["kind"] == "train"]
+    assert trained and all(w > 0 for w in trained) and timing["total_s"] >= sum(trained) + timing["gates_s"] - 0.5
+    assert "wall-clock: " in out and " cores, " in out
 
 
 @pytest.mark.slow

@@ -549,6 +549,19 @@ def test_a_garbage_scalars_csv_fails_a_resume_in_one_line(tmp_path):
     assert "\n" not in str(info.value)
 
 
+def test_the_logged_wall_time_sums_the_segments_of_a_resumed_run(tmp_path):
+    from agent_client.rl.scalars import logged_wall_s
+
+    # 100 s, then resumed at step 20 (the clock starts again) for 40 s more, then 7 s more
+    rows = "5,charts/x,1,60.0\n20,charts/x,1,100.0\n30,charts/x,1,15.0\n40,charts/x,1,40.0\n50,charts/x,1,7.0\n"
+    (tmp_path / "scalars.csv").write_text("step,name,value,wall_s\n" + rows)
+    assert logged_wall_s(tmp_path) == pytest.approx(147.0)
+    (tmp_path / "scalars.csv").write_text("step,name,value,wall_s\n")
+    assert logged_wall_s(tmp_path) == 0.0
+    with pytest.raises(InputFileError, match="not found"):
+        logged_wall_s(tmp_path / "none")
+
+
 def test_a_row_torn_by_a_kill_is_dropped_on_resume_and_rows_reach_the_disk_while_training(tmp_path, monkeypatch):
     """A kill -9 while the writer's buffer reaches the disk can leave half a row at the end;
     a resume drops it (it was never whole) instead of refusing the run."""
