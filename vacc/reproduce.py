@@ -157,7 +157,10 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     except (ClientError, ValueError) as exc:
         raise click.ClickException(f"stage {stage.name}: {exc}") from None
     # a train stage's time over all its sessions (its scalars restart with each resume); a surgery stage's now
-    wall_s = logged_wall_s(sdir / "run") if stage.kind == "train" else time.perf_counter() - t0
+    try:
+        wall_s: float | None = logged_wall_s(sdir / "run") if stage.kind == "train" else time.perf_counter() - t0
+    except (ClientError, ValueError):  # a scalars file it cannot read: the time unknown, the stage done
+        wall_s = None
     # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by the SHA-256 of
     # their weights (their files also record paths) and by their paths relative to the output
     # folder, so that a run records the same lineage in any folder.
@@ -166,7 +169,7 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
     stamp_lineage(dst, lineage)
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
-              "wall_s": round(wall_s, 1), "host": describe()}  # fmt: skip
+              "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe()}  # fmt: skip
     record_file.write_text(json.dumps(record, indent=1) + "\n")
     return record
 

@@ -82,8 +82,11 @@ def decision_latency(q: QNetwork | None = None, repeats: int = 300, cfg: Config 
         whole = latency(lambda: ctl(obs), repeats)
         stacked = ctl.warm(obs)
         frames, speeds, controls = stacked["frames"].clone(), stacked["speeds"], stacked.get("controls")
-        if ctl.q.recurrent:  # its forward is a step of its state
+        if ctl.q.recurrent and hasattr(ctl.policy, "outputs"):  # its forward is a step of its state
             forward = latency(lambda: ctl.policy.outputs(frames, speeds, controls), repeats)
+        elif ctl.q.recurrent:  # the recurrent actor: a step of its state and its actor
+            stack = {"frames": frames, "speeds": speeds, "controls": controls}
+            forward = latency(lambda: ctl.policy.target(stack), repeats)
         else:
             inputs = batch_of_one(ctl.q, frames, speeds, controls)
             with torch.inference_mode():

@@ -38,7 +38,7 @@ from agent_client.rl.network import FIRM_BRAKE, Decision, batch_of_one, gru_cell
 from agent_client.rl.replay import flat_transitions
 
 __all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
-           "network_of", "policy_of", "noise_std", "soft_update", "target_of"]
+           "network_of", "policy_of", "recurrent_start", "noise_std", "soft_update", "target_of"]
 
 CRITIC_NAME = "losses/critic"
 ACTOR_NAME = "losses/actor"
@@ -411,6 +411,21 @@ def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: n
     nn.utils.clip_grad_norm_(net.parameters(), max_grad_norm)
     optimizer.step()
     return loss.item()
+
+
+def recurrent_start(src: nn.Module) -> dict[str, torch.Tensor]:
+    """What a :class:`RecurrentActorCritic` starts from in ``src`` (``init_from``), by its
+    names: the convolutions; from a DQN, its hidden layer as the encoder (``fc.0`` ->
+    ``encoder.0``) and a recurrent DQN's GRU; from a recurrent actor-critic, all of it. The
+    actor and the critic of another network read other features, so they start afresh."""
+    state = src.state_dict()
+    if isinstance(src, RecurrentActorCritic):
+        return dict(state)
+    keep = {k: v for k, v in state.items() if k.startswith("conv.")}
+    if not isinstance(src, ActorCritic):
+        keep |= {"encoder.0." + k.removeprefix("fc.0."): v for k, v in state.items() if k.startswith("fc.0.")}
+        keep |= {k: v for k, v in state.items() if k.startswith("gru.")}
+    return keep
 
 
 # ------------------------------------------------------------------ by the config

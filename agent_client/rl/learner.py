@@ -274,7 +274,7 @@ class Learner:
             return
         init_q, init_cfg = load_policy(cfg.init_from)
         if cfg.bc_steps > 0 and init_q.recurrent:
-            raise InputFileError(f"{cfg.init_from}: a recurrent network; bc_steps clones a frame-stack student's decision")
+            raise InputFileError(f"{cfg.init_from}: a recurrent network cannot be the student of --bc-steps (it clones a frame-stack DQN's decision): give a frame-stack student or --bc-steps 0")
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
         widths = [(",".join(map(str, c.conv_channels)), c.hidden) for c in (init_cfg, cfg)]
@@ -284,6 +284,8 @@ class Learner:
                                  "start from scratch, or learn from it with --teacher policy")  # fmt: skip
         if init_cfg.action == cfg.action and init_q.state_dict().keys() == self.q.state_dict().keys():
             self.q.load_state_dict(init_q.state_dict())
+        elif isinstance(self.q, ac.RecurrentActorCritic):  # its trunk by name; its actor and critic afresh (or cloned)
+            transfer_weights(ac.recurrent_start(init_q), self.q)
         else:  # another action set, a gap head added, or a DQN's trunk for the actor-critic (its actor cloned by bc_steps)
             transfer_weights(init_q, self.q)
         self.target.load_state_dict(self.q.state_dict())
@@ -366,6 +368,8 @@ class Learner:
         Returns:
             The step's losses when ``log_step`` is given (the loop logs them there).
         """
+        if isinstance(b, SequenceSamples) and not bool(b.train.any()):  # every sequence still in its burn-in: nothing to learn from
+            return None
         if self.continuous:
             return self._update_actor_critic(b, log_step)
         if isinstance(b, SequenceSamples):

@@ -460,7 +460,7 @@ class Policy:
         return Decision(action, target)
 
 
-def transfer_weights(src: nn.Module, dst: nn.Module) -> list[str]:
+def transfer_weights(src: nn.Module | dict[str, torch.Tensor], dst: nn.Module) -> list[str]:
     """Start ``dst`` from ``src`` where their shapes allow (fine-tuning across action types).
 
     A tensor of the same shape is copied. A weight that is wider in ``dst`` only in its
@@ -472,7 +472,7 @@ def transfer_weights(src: nn.Module, dst: nn.Module) -> list[str]:
     Returns:
         The names of the tensors left as initialised.
     """
-    src_state, kept = src.state_dict(), []
+    src_state, kept = (src if isinstance(src, dict) else src.state_dict()), []
     with torch.no_grad():
         for name, t in dst.state_dict().items():
             s = src_state.get(name)

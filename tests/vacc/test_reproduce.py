@@ -3,6 +3,7 @@ resumes to the same model as one that never stopped."""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -16,7 +17,7 @@ import torch
 from proctools import reap_job
 
 from vacc.recipes import RECIPES_DIR
-from vacc.reproduce import SEED_STRIDE, shifted_seed
+from vacc.reproduce import SEED_STRIDE, duration, shifted_seed
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = sorted(p.stem for p in RECIPES_DIR.glob("*.toml"))
@@ -56,12 +57,14 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     for stage_dir in (p for p in folder.iterdir() if (p / "done.json").is_file()):
         done = json.loads((stage_dir / "done.json").read_text())
         assert done["stage"] == stage_dir.name and all(len(p["sha256"]) == 64 for p in done["parents"])
-        assert done["wall_s"] >= 0.0 and done["host"]["cores"] >= 1
+        assert done["host"]["cores"] >= 1
+        if done["kind"] == "train":  # its time is its run's, from the scalars (the smoke run: one session)
+            logged = max(float(r["wall_s"]) for r in csv.DictReader(open(stage_dir / "run" / "scalars.csv")))
+            assert done["wall_s"] == pytest.approx(logged, abs=0.05) and logged > 0
     # the wall-clock per stage and in all, recorded and printed
     timing = json.loads((folder / "timing.json").read_text())
-    trained = [v["wall_s"] for v in timing["stages"].values() if v["kind"] == "train"]
-    assert trained and all(w > 0 for w in trained) and timing["total_s"] >= sum(trained) + timing["gates_s"] - 0.5
-    assert "wall-clock: " in out and " cores, " in out
+    assert any(v["kind"] == "train" for v in timing["stages"].values())
+    assert "wall-clock: " in out and f"total {duration(timing['total_s'])} on " in out and " cores, " in out
 
 
 @pytest.mark.slow

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from agent_client.rl import actor_critic as ac
 from agent_client.rl.checkpoint import load_policy, save_policy
 from agent_client.rl.config import Config, ConfigError
-from agent_client.rl.network import Policy, QNetwork, RecurrentQNetwork
+from agent_client.rl.network import Policy, QNetwork, RecurrentQNetwork, transfer_weights
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.train import train
 from vacc.cli import main
@@ -198,6 +198,9 @@ def test_the_recurrent_actor_steps_as_it_unrolls_and_its_policy_forgets_with_the
     assert policy(seq[-1]).continuous != cold  # what came before changes the answer
     policy.reset()
     assert not policy.state().any() and policy(seq[-1]).continuous == cold  # to the bit
+    from agent_client.bench.ddqn import decision_latency  # vacc bench times it as any policy
+
+    assert decision_latency(net, repeats=3, cfg=AC)["forward_median_s"] > 0
 
 
 def test_a_sequence_update_trains_trunk_gru_actor_and_critic_and_moves_only_the_critics_target():
@@ -219,6 +222,40 @@ def test_a_sequence_update_trains_trunk_gru_actor_and_critic_and_moves_only_the_
     assert {"conv.0.weight", "encoder.0.weight", "gru.weight_hh_l0", "fc.0.weight", "critic_trunk.0.weight", "q1.0.weight"} <= moved
     target_moved = {k.split(".")[0] for k, v in target.state_dict().items() if not torch.equal(v, target_before[k])}
     assert target_moved == {"critic_trunk", "q1", "q2"}
+
+
+def test_on_a_sequence_the_actors_loss_reaches_the_actor_alone_and_the_critics_the_trunk_and_gru():
+    rng = np.random.default_rng(6)
+    net = _ac(2).train()
+    frames = torch.from_numpy(rng.integers(0, 256, (3, 5, 2, H, W), dtype=np.uint8)).float() / 255.0
+    speeds, controls = torch.rand(3, 5, 2) * 30, torch.rand(3, 5, 2, 2)
+    keep = torch.ones(3, 4, dtype=torch.bool)
+    keep[0, :2] = False  # a burn-in
+    z = net.unroll(frames, speeds, controls, torch.randn(3, 32))[:, :-1][keep]  # [N, H]
+    frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
+    (-torch.min(*ac._critic_with(net, frozen, z.detach())).mean()).backward(retain_graph=True)
+    assert {k for k, p in net.named_parameters() if p.grad is not None} == {"fc.0.weight", "fc.0.bias", "fc.2.weight", "fc.2.bias"}
+    net.zero_grad(set_to_none=True)
+    q1, q2 = net.critic(z, torch.zeros(len(z)))
+    (q1.pow(2).mean() + q2.pow(2).mean()).backward()
+    reached = {k.split(".")[0] for k, p in net.named_parameters() if p.grad is not None}
+    assert reached == {"conv", "encoder", "gru", "critic_trunk", "q1", "q2"}
+
+
+def test_the_recurrent_actor_starts_from_a_dqns_trunk_its_hidden_layer_as_its_encoder():
+    torch.manual_seed(7)
+    dqn = QNetwork.of(dataclasses.replace(TINY, recurrent="none", action="ramp-fine"))
+    net = _ac(8)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    start = ac.recurrent_start(dqn)
+    assert set(start) == {k for k in dqn.state_dict() if k.startswith("conv.")} | {"encoder.0.weight", "encoder.0.bias"}
+    transfer_weights(start, net)
+    after = net.state_dict()
+    assert torch.equal(after["encoder.0.weight"], dqn.state_dict()["fc.0.weight"]) and torch.equal(after["conv.0.weight"], dqn.state_dict()["conv.0.weight"])
+    assert all(torch.equal(after[k], before[k]) for k in after if k.startswith(("fc.", "critic_trunk", "q1", "q2", "gru")))  # afresh
+    # a recurrent DQN gives its GRU too; a frame-stack actor-critic only its convolutions
+    assert any(k.startswith("gru.") for k in ac.recurrent_start(_net(9)))
+    assert all(k.startswith("conv.") for k in ac.recurrent_start(ac.network_of(dataclasses.replace(AC, recurrent="none"))))
 
 
 @pytest.mark.integration
@@ -248,5 +285,5 @@ def test_a_recurrent_actor_critic_cloned_from_a_student_resumes_bit_exact_and_dr
     # a recurrent network is no student to clone: refused before anything runs
     from agent_client.errors import InputFileError
 
-    with pytest.raises(InputFileError, match="recurrent network; bc_steps"):
+    with pytest.raises(InputFileError, match="recurrent network cannot be the student of --bc-steps"):
         train(dataclasses.replace(cfg, init_from=str(tmp_path / "whole" / "latest.pt")), tmp_path / "again", progress=False)
