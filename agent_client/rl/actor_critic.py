@@ -34,7 +34,14 @@ import torch.nn.functional as F
 
 from agent_client.actions import EMERGENCY_LEVEL, FULL_BRAKE_TARGET, make_action_type
 from agent_client.preprocess import FRAME_H, FRAME_W
-from agent_client.rl.network import FIRM_BRAKE, Decision, batch_of_one, gru_cell, scale_frames
+from agent_client.rl.network import (
+    FIRM_BRAKE,
+    Decision,
+    GRUState,
+    batch_of_one,
+    gru_cell,
+    scale_frames,
+)
 from agent_client.rl.replay import flat_transitions
 
 __all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
@@ -128,7 +135,7 @@ class ActorCritic(nn.Module):
         return self.actor(self.features(frames, speeds, controls))[:, None]
 
 
-class RecurrentActorCritic(ActorCritic):
+class RecurrentActorCritic(GRUState, ActorCritic):
     """:class:`ActorCritic` over a GRU, the recurrent trunk of
     :class:`~agent_client.rl.network.RecurrentQNetwork` for the actor-critic.
 
@@ -146,14 +153,6 @@ class RecurrentActorCritic(ActorCritic):
         self.encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU())
         self.gru = nn.GRU(hidden, hidden, batch_first=True)
         super()._heads_on(hidden, hidden)
-
-    @property
-    def state_size(self) -> int:
-        return self.gru.hidden_size
-
-    def initial_state(self, batch: int = 1) -> torch.Tensor:
-        """The state at an episode's start: zeros ``[batch, hidden]``."""
-        return torch.zeros(batch, self.gru.hidden_size, device=self.device)
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         raise TypeError("a recurrent network decides from its state: use step() or unroll(), or drive it through ActorPolicy")

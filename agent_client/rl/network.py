@@ -24,7 +24,7 @@ from agent_client.stacker import stack_picks
 from protocol.constants import FORCES, N_ACTIONS
 
 __all__ = [
-    "QNetwork", "RecurrentQNetwork", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
+    "QNetwork", "RecurrentQNetwork", "GRUState", "gru_cell", "FORCES", "N_ACTIONS", "Decision", "Policy", "greedy_action", "linear_schedule", "transfer_weights",
     "GAP_HEAD_SCALE", "CLOSING_HEAD_SCALE", "batch_of_one", "scale_frames", "ScaledFrames",
 ]  # fmt: skip
 
@@ -176,7 +176,23 @@ class QNetwork(nn.Module):
         return torch.relu_(F.linear(z, hidden.weight, hidden.bias))  # [B, 256]
 
 
-class RecurrentQNetwork(QNetwork):
+class GRUState:
+    """What a network with a one-layer GRU (``self.gru``) carries between steps: the size of
+    its state and the state at an episode's start (zeros)."""
+
+    gru: nn.GRU
+    device: torch.device
+
+    @property
+    def state_size(self) -> int:
+        return self.gru.hidden_size
+
+    def initial_state(self, batch: int = 1) -> torch.Tensor:
+        """The state at an episode's start: zeros ``[batch, hidden]``."""
+        return torch.zeros(batch, self.gru.hidden_size, device=self.device)
+
+
+class RecurrentQNetwork(GRUState, QNetwork):
     """:class:`QNetwork` with a GRU between its hidden layer and its outputs: the paper's third
     item of future work, a recurrent network over the whole sequence of frames rather than a
     fixed stack alone (R2D2, Kapturowski et al. 2019, with a GRU for an LSTM).
@@ -196,14 +212,6 @@ class RecurrentQNetwork(QNetwork):
         super().__init__(*args, **kwargs)
         width = self._linears[0].out_features
         self.gru = nn.GRU(width, width, batch_first=True)
-
-    @property
-    def state_size(self) -> int:
-        return self.gru.hidden_size
-
-    def initial_state(self, batch: int = 1) -> torch.Tensor:
-        """The state at an episode's start: zeros ``[batch, hidden]``."""
-        return torch.zeros(batch, self.gru.hidden_size, device=self.device)
 
     def forward(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         raise TypeError("a recurrent network decides from its state: use step() or unroll(), or drive it through Policy")
