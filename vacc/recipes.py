@@ -5,7 +5,7 @@ checks (gates) its model must pass. Its layout::
 
     [recipe]                 name, scenario ("ice" | "ev"), description, seed
     [ablation]               note: which stages are candidates to drop (optional)
-    [[stage]]                name, kind, note (optional), then the kind's keys:
+    [[stage]]                name, kind, note and known_weights (optional), then the kind's keys:
       train                  every Config field by name (``vacc train``'s options, snake_case;
                              None written "none"), and output = "best" | "latest" | "eval:STEP"
       average                inputs = ["stage:a", "stage:b"], weights = [1.0, 1.0]
@@ -24,6 +24,12 @@ A stage's inputs (``init_from``, ``teacher_policy``, ``input``, ``inputs``) name
 earlier stage as ``"stage:<name>"``, never a path: nothing outside the recipe and the
 repository is needed. The recipe's digest is the SHA-256 of its canonical content
 (:func:`digest`), recorded in every checkpoint a stage writes.
+
+A stage's ``known_weights`` is the SHA-256 of the weights that stage made when the model was
+first built (:func:`vacc.reproduce.weights_sha256` of a file kept in git history): a rebuild
+with the recipe's own seed says whether it made them again bit for bit. It records an
+outcome, not an input, so it is left out of the digest: writing one in does not invalidate
+a run under way.
 
 This module parses, checks and digests; :mod:`vacc.reproduce` runs a recipe and
 :mod:`vacc.gates` checks its model.
@@ -62,7 +68,9 @@ STAGE_KINDS: dict[str, tuple[str, ...]] = {
 """Each stage kind's keys besides name, kind and note (all required)."""
 
 TRAIN_REFS = ("init_from", "teacher_policy")  # the Config fields that name a checkpoint
-COMMON_KEYS = ("name", "kind", "note")
+OPTIONAL_KEYS = ("note", "known_weights")
+COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
+OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
 RECIPE_KEYS = ("name", "scenario", "description", "seed")
 GATE_KEYS: dict[str, tuple[str, ...]] = {
     "tests": ("seed", "max_gap_rmse_m"),
@@ -85,6 +93,7 @@ class Stage(NamedTuple):
     kind: str
     options: dict[str, Any]
     note: str
+    known_weights: str | None = None
 
 
 class Recipe(NamedTuple):
@@ -131,7 +140,8 @@ def recipe_path(model_or_file: str | Path) -> Path:
 
 def digest(content: dict[str, Any]) -> str:
     """SHA-256 (hex) of a recipe's canonical content: its parsed TOML as JSON, keys sorted,
-    no whitespace. Comments and layout do not count; every value does (notes too)."""
+    no whitespace. Comments and layout do not count; every value does (notes too).
+    :func:`parse_recipe` passes it the content without the stages' ``known_weights``."""
     text = json.dumps(content, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -160,7 +170,7 @@ def _unknown(path: Path, where: str, table: dict[str, Any], allowed: tuple[str, 
     extra = sorted(set(table) - set(allowed))
     if extra:
         raise _bad(path, f"{where}.{extra[0]}", f"unknown key; expected {', '.join(allowed)}")
-    missing = [k for k in allowed if k not in table and k != "note"]
+    missing = [k for k in allowed if k not in table and k not in OPTIONAL_KEYS]
     if missing:
         raise _bad(path, f"{where}.{missing[0]}", "missing (every option is written out)")
 
@@ -193,7 +203,8 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
     for i, raw in enumerate(raw_stages):
         stages.append(_parse_stage(path, i, raw, [s.name for s in stages]))
     gates = _parse_gates(path, content.get("gates", {}))
-    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(content))
+    inputs = {**content, "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS} for raw in raw_stages]}
+    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs))
 
 
 def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
@@ -215,7 +226,10 @@ def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
         values = options[key] if isinstance(options[key], list) else [options[key]]
         for v in values:
             _check_ref(path, f"{where}.{key}", v, name, earlier, optional=key in TRAIN_REFS)
-    stage = Stage(name, kind, options, str(raw.get("note", "")))
+    known = raw.get("known_weights")
+    if known is not None and not (isinstance(known, str) and len(known) == 64 and all(c in "0123456789abcdef" for c in known)):
+        raise _bad(path, f"{where}.known_weights", f"{known!r} is not a SHA-256 (64 lowercase hex digits)")
+    stage = Stage(name, kind, options, str(raw.get("note", "")), known)
     if kind == "train":
         _check_train(path, where, stage)
     else:

@@ -8,6 +8,10 @@ SHA-256 and is skipped when the same command runs again; a train stage stopped h
 bit-exact resume; a surgery stage (average, decide, narrow, export) is quick and simply
 runs again. The run ends with ``DIR/<model>.pt`` and the gate report (``DIR/gates/``).
 
+Bit for bit: at the recipe's own seed, each stage with ``known_weights`` and the model itself
+(against the shipped ``models/<model>.pt``, where there is one) are compared by the SHA-256 of
+their weights, written to ``DIR/identity.json`` and printed in one line (:func:`identity`).
+
 Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
 (N minus the recipe's seed): the recipe's own seed gives its written seeds, and every
 other N a distinct, equally written-out set.
@@ -45,7 +49,7 @@ from vacc.host import describe, label
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
-           "timing_line", "duration"]
+           "timing_line", "duration", "identity", "identity_line"]
 
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
@@ -226,7 +230,37 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     timing["total_s"] = None if any(v["wall_s"] is None for v in stages.values()) else round(sum(v["wall_s"] for v in stages.values()) + timing["gates_s"], 1)
     (out / "timing.json").write_text(json.dumps(timing, indent=1) + "\n")
     report["timing"] = timing
+    report["identity"] = identity(recipe, done, final, opts)
+    (out / "identity.json").write_text(json.dumps(report["identity"], indent=1) + "\n")
     return report
+
+
+def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts: dict[str, Any]) -> dict[str, Any]:
+    """Whether a run made the known weights again: each stage with ``known_weights``, and the
+    model against the shipped ``<models>/<name>.pt`` (where there is one). Only at the recipe's
+    own seed and not --smoke; otherwise ``{"compared": False, "why": ...}``."""
+    if opts["smoke"] or opts["seed"] != recipe.seed:
+        why = "--smoke" if opts["smoke"] else f"--seed {opts['seed']} is a replicate (the recipe's seed is {recipe.seed})"
+        return {"compared": False, "why": why, "checks": []}
+    from vacc.paths import models_dir
+
+    checks = [{"what": f"stage {s.name}", "known": s.known_weights, "made": done[s.name]["weights_sha256"]}
+              for s in recipe.stages if s.known_weights]  # fmt: skip
+    shipped = models_dir() / f"{recipe.name}.pt"
+    if shipped.is_file():
+        checks.append({"what": f"{final.name} against {shipped}", "known": weights_sha256(shipped), "made": weights_sha256(final)})
+    for c in checks:
+        c["identical"] = c["known"] == c["made"]
+    return {"compared": True, "why": "", "checks": checks}
+
+
+def identity_line(ident: dict[str, Any]) -> str:
+    """``bit for bit: stage scratch identical, stage safety DIFFERS; ...`` in one line."""
+    if not ident["compared"]:
+        return f"bit for bit: not compared ({ident['why']})"
+    if not ident["checks"]:
+        return "bit for bit: nothing known to compare with"
+    return "bit for bit: " + ", ".join(f"{c['what']} {'identical' if c['identical'] else 'DIFFERS'}" for c in ident["checks"])
 
 
 def duration(seconds: float) -> str:
@@ -276,6 +310,7 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
             raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
     click.echo(timing_line(report["timing"]))
-    click.echo(f"Wrote {out}/{recipe.name}.pt, {out}/gates/gates.json and {out}/timing.json")
+    click.echo(identity_line(report["identity"]))
+    click.echo(f"Wrote {out}/{recipe.name}.pt, {out}/gates/gates.json, {out}/timing.json and {out}/identity.json")
     if not report["passed"] and not smoke:
         raise SystemExit(1)

@@ -150,3 +150,21 @@ def test_a_missing_recipe_is_named(tmp_path):
     bad.write_text("[recipe\n")
     with pytest.raises(RecipeError, match="not valid TOML"):
         load_recipe(bad)
+
+
+def test_known_weights_are_checked_and_left_out_of_the_digest():
+    c = _content()
+    plain = parse_recipe(c, Path("recipes/x.toml"))
+    c["stage"][0]["known_weights"] = "ab" * 32
+    known = parse_recipe(c, Path("recipes/x.toml"))
+    assert known.stages[0].known_weights == "ab" * 32 and plain.stages[0].known_weights is None
+    assert known.digest == plain.digest  # an outcome written in later does not invalidate a run
+    for bad in ("AB" * 32, "ab" * 31, 7):
+        c["stage"][0]["known_weights"] = bad
+        _refuse(c, f"stage '{c['stage'][0]['name']}'.known_weights", "SHA-256")
+
+
+def test_ice_gap_names_the_weights_of_its_shipped_history():
+    recipe = load_recipe("ice-gap")
+    known = {s.name for s in recipe.stages if s.known_weights}
+    assert {"scratch", "final"} <= known

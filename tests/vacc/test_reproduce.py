@@ -65,6 +65,8 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     timing = json.loads((folder / "timing.json").read_text())
     assert any(v["kind"] == "train" for v in timing["stages"].values())
     assert "wall-clock: " in out and f"total {duration(timing['total_s'])} on " in out and " cores, " in out
+    # a smoke run is never compared bit for bit
+    assert json.loads((folder / "identity.json").read_text())["compared"] is False and "bit for bit: not compared (--smoke)" in out
 
 
 @pytest.mark.slow
