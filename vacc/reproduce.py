@@ -218,6 +218,9 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
         if progress:
             click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
         done[stage.name] = run_stage(recipe, stage, out, done, opts)
+        if progress and stage.known_weights and not _not_compared(recipe, opts):  # hours before the end's line
+            same = done[stage.name]["weights_sha256"] == stage.known_weights
+            click.echo(f"vacc reproduce {recipe.name}: stage {stage.name}'s weights {'are identical to' if same else 'DIFFER from'} the known ones", err=True)
     last = recipe.stages[-1].name
     final = out / f"{recipe.name}.pt"
     shutil.copyfile(out / last / f"{last}.pt", final)
@@ -239,8 +242,8 @@ def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts:
     """Whether a run made the known weights again: each stage with ``known_weights``, and the
     model against the shipped ``<models>/<name>.pt`` (where there is one). Only at the recipe's
     own seed and not --smoke; otherwise ``{"compared": False, "why": ...}``."""
-    if opts["smoke"] or opts["seed"] != recipe.seed:
-        why = "--smoke" if opts["smoke"] else f"--seed {opts['seed']} is a replicate (the recipe's seed is {recipe.seed})"
+    why = _not_compared(recipe, opts)
+    if why:
         return {"compared": False, "why": why, "checks": []}
     from vacc.paths import models_dir
 
@@ -252,6 +255,15 @@ def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts:
     for c in checks:
         c["identical"] = c["known"] == c["made"]
     return {"compared": True, "why": "", "checks": checks}
+
+
+def _not_compared(recipe: Recipe, opts: dict[str, Any]) -> str:
+    """Why a run's weights are not compared with the known ones ("" when they are)."""
+    if opts["smoke"]:
+        return "--smoke"
+    if opts["seed"] != recipe.seed:
+        return f"--seed {opts['seed']} is a replicate (the recipe's seed is {recipe.seed})"
+    return ""
 
 
 def identity_line(ident: dict[str, Any]) -> str:
