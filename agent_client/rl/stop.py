@@ -1,7 +1,8 @@
 """Stopping a training by signal.
 
 Inside :func:`stop_handlers`, the first SIGINT (Ctrl-C) or SIGTERM (``kill PID``) sets
-:data:`STOP`: the loop ends at its next step with a checkpoint, and the run resumes.
+:data:`STOP`: the loop ends with a checkpoint where it can resume (the single-stream loop at
+the episode's end, so exactly; the K-stream one after the batch in flight), and the run resumes.
 The step in flight finishes first (an evaluation, a checkpoint being written). A second
 signal aborts at once (``SystemExit``; the ``finally`` blocks reap servers and actors).
 
@@ -20,7 +21,7 @@ from collections.abc import Iterator
 
 __all__ = ["STOP", "stop_handlers", "reinstall_stop_handler", "stop_exit_code", "stop_cause", "worker_signals", "handlers_active"]
 
-# Set by the first SIGINT or SIGTERM to end either training loop at its next step with a checkpoint.
+# Set by the first SIGINT or SIGTERM to end either training loop with a checkpoint it can resume from.
 STOP = threading.Event()
 _first_signal: list[int] = []  # the signal that set STOP
 _handler: list[object] = []  # the handler installed by the innermost stop_handlers
@@ -42,7 +43,7 @@ def stop_handlers(prog: str, then: str) -> Iterator[None]:
         again = "Ctrl-C" if signum == signal.SIGINT else "signal"
         # os.write, not print: a handler that runs inside a write to stderr (a progress
         # bar's) must not write through the same buffer.
-        os.write(2, f"\n{prog}: {_NAMES.get(signum, 'signal')}: stopping after this step with a checkpoint{then} ({again} again to abort)\n".encode())
+        os.write(2, f"\n{prog}: {_NAMES.get(signum, 'signal')}: stopping at the next point it can resume from, with a checkpoint{then} ({again} again to abort)\n".encode())
 
     previous = {s: signal.getsignal(s) for s in SIGNALS}
     for s in SIGNALS:

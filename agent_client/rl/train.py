@@ -12,7 +12,7 @@ server process over UDP through :class:`agent_client.env.VisionACCEnv`.
 
 Run folder ``runs/<name>/``: ``config.json``; ``scalars.csv`` (``step,name,value,wall_s``;
 TensorBoard events too if installed); ``latest.pt`` + ``replay-<step>.npz``, written at
-episode ends, so a resumed run continues exactly; ``best.pt``, the policy with the best
+episode ends (a Ctrl-C waits for the episode's end), so a resumed run continues exactly; ``best.pt``, the policy with the best
 evaluation so far (< 5 MB).
 """
 
@@ -47,6 +47,7 @@ class LoopState:
     global_step: int = 0
     episodes: int = 0
     recent_returns: list[float] = field(default_factory=list)
+    eval_pending: bool = False  # stopped where an evaluation was due: the resumed run does it first
 
 
 @dataclass
@@ -140,6 +141,9 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     bar = Progress(cfg.total_steps, enabled=progress, initial=state.global_step)
     recent = deque(state.recent_returns, maxlen=20)
     grid = _Schedule.at(state.global_step, cfg)
+    if state.eval_pending:  # where the uninterrupted run evaluated, with the same weights
+        learner.evaluate(state.global_step)
+        grid.last_eval_step, state.eval_pending = state.global_step, False
     t_start, steps_at_start = time.perf_counter(), state.global_step
 
     def sps() -> float:
@@ -161,7 +165,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
             if state.episodes == 0:  # what the network sees, once
                 log.frames("charts/first_observation", obs["frames"], state.global_step)
             episode_return, episode_len, done = 0.0, 0, False
-            while not done and state.global_step < cfg.total_steps and not STOP.is_set():
+            while not done and state.global_step < cfg.total_steps:  # a stop waits for the episode's end
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
                 decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
@@ -183,7 +187,10 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                                     ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()), ("epsilon", epsilon)):  # fmt: skip
                     log.add(f"charts/{name}", value, state.global_step)
             state.recent_returns = list(recent)
-            if STOP.is_set() and state.global_step < cfg.total_steps:  # asked to stop: keep what was learned, resumable
+            if STOP.is_set() and state.global_step < cfg.total_steps:
+                # Asked to stop: a checkpoint at an episode's end, as every one, so the resumed run
+                # continues exactly (one cut mid-episode would start a new episode in its place).
+                state.eval_pending = bool(cfg.eval_trajectories) and state.global_step >= grid.next_eval
                 learner.checkpoint(asdict(state), memory)
                 break
             _evaluate_and_checkpoint(cfg, learner, memory, state, grid)

@@ -253,7 +253,7 @@ def test_sigterm_stops_with_a_checkpoint_and_a_second_aborts(tmp_path):
         proc.terminate()
         stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 143, stderr
-    assert "SIGTERM: stopping after this step with a checkpoint" in stderr and "Traceback" not in stderr, stderr
+    assert "SIGTERM: stopping at the next point it can resume from, with a checkpoint" in stderr and "Traceback" not in stderr, stderr
     assert "stopped by SIGTERM at step" in stdout and "--resume" in stdout, stdout
     assert (out / "latest.pt").exists() and wait_gone(tree) == []
 
@@ -364,3 +364,35 @@ def test_train_traffic_goes_to_the_training_server_only(tmp_path):
     bad = CliRunner().invoke(main, ["train", "--reward", "gap", "--steps", "10", "--train-sun-elevation", "0.6,0.4", "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "--train-sun-elevation" in bad.output and "LOW <= HIGH" in bad.output, bad.output
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_ctrl_c_mid_episode_resumes_exactly_as_an_uninterrupted_run(tmp_path):
+    """The stop waits for the episode's end: a checkpoint cut mid-episode started a new episode
+    on resume, and a rebuilt ice-gap drifted from its shipped weights after one Ctrl-C."""
+    base = [sys.executable, "-m", "vacc", "train", "--quiet"]
+    steps = ["--reward", "gap", "--steps", "600", "--learning-starts", "20", "--buffer-size", "1000", "--episode-seconds", "3",
+             "--eval-every", "150", "--eval-trajectories", "random:3", "--eval-seconds", "0.5", "--checkpoint-every", "100000"]  # fmt: skip
+    whole, split = tmp_path / "whole", tmp_path / "split"
+    done = subprocess.run([*base, *steps, "--out", str(whole)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    with job([*base, *steps, "--out", str(split)], own_group=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
+        deadline = time.monotonic() + 300
+        scalars = split / "scalars.csv"
+        # two episodes in (30 steps each): the Ctrl-C lands somewhere inside the third or later
+        while not (scalars.exists() and scalars.read_text().count("charts/episodic_return") >= 2):
+            assert proc.poll() is None and time.monotonic() < deadline, "training did not get going"
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 130, stderr
+    stopped = torch.load(split / "latest.pt", weights_only=True)["state"]["global_step"]
+    ends = {int(r["step"]) for r in csv.DictReader(open(split / "scalars.csv")) if r["name"] == "charts/episodic_return"}
+    assert 0 < stopped < 600 and stopped in ends, stopped  # at an episode's end
+    resumed = subprocess.run([*base, "--resume", "--out", str(split)], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    a, b = _state(whole), _state(split)
+    assert a["state"]["global_step"] == b["state"]["global_step"] == 600
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    evals = lambda p: [(r["step"], r["name"], r["value"]) for r in csv.DictReader(open(p / "scalars.csv")) if r["name"].startswith("eval/")]  # noqa: E731
+    assert evals(whole) == evals(split)  # every evaluation, the same, also one due where it stopped

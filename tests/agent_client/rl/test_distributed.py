@@ -260,7 +260,7 @@ def test_learner_signals_leave_no_process_behind(tmp_path, sig):
     if sig != signal.SIGKILL:
         assert "Traceback" not in stderr, stderr[-2000:]
     if sig == signal.SIGTERM:
-        assert proc.returncode == 143 and "SIGTERM: stopping after this step with a checkpoint" in stderr, stderr[-2000:]
+        assert proc.returncode == 143 and "SIGTERM: stopping at the next point it can resume from, with a checkpoint" in stderr, stderr[-2000:]
         assert (out / "latest.pt").is_file()
 
 

@@ -55,7 +55,7 @@ def test_sigterm_to_a_ray_run_leaves_no_process_behind(tmp_path):
     assert wait_gone(tree, timeout=20) == [], stderr[-2000:]  # Ray's own processes, its workers and the servers
     assert "Traceback" not in stderr and "SIGTERM received" not in stderr, stderr[-2000:]
     # ray.init takes SIGTERM for itself; the trainer takes it back, so a kill checkpoints
-    assert proc.returncode == 143 and "SIGTERM: stopping after this step" in stderr, stderr[-2000:]
+    assert proc.returncode == 143 and "SIGTERM: stopping at the next point it can resume from" in stderr, stderr[-2000:]
     assert (out / "latest.pt").is_file()
 
 
