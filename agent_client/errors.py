@@ -10,6 +10,7 @@ __all__ = [
     "ServerLaunchError",
     "InputFileError",
     "OutputFileError",
+    "ResumeError",
 ]
 
 
@@ -48,3 +49,7 @@ class InputFileError(ValueError, ClientError):
 class OutputFileError(OSError, ClientError):
     """An output file (a log, a checkpoint, a run folder's file) could not be written;
     the message names it and says why, in one line."""
+
+
+class ResumeError(RuntimeError, ClientError):
+    """A run could not be taken up exactly where it stopped; the message says where it parted."""

@@ -325,6 +325,14 @@ class ActorPolicy:
         """Forget the episode: a recurrent actor's state (the frame stack has none here)."""
         self._state = None
 
+    def episode_state(self) -> dict[str, Any]:
+        """A recurrent actor's state within the episode (:meth:`agent_client.rl.network.Policy.episode_state`)."""
+        return {"state": None if self._state is None else self._state.clone()}
+
+    def set_episode_state(self, saved: dict[str, Any]) -> None:
+        """Take up an episode where :meth:`episode_state` left it."""
+        self._state = saved["state"]
+
     def state(self) -> np.ndarray | None:
         """A recurrent actor's state before the next observation ``[hidden]`` (float32), else None
         (:meth:`agent_client.rl.network.Policy.state`)."""

@@ -398,6 +398,15 @@ class Policy:
         self._share_streak = self._full_streak = 0
         self._state = None
 
+    def episode_state(self) -> dict[str, Any]:
+        """What it carries from one decision to the next within an episode (the decisions in a row, a
+        recurrent state): a checkpoint cut mid-episode keeps it, as the network then was."""
+        return {"share_streak": self._share_streak, "full_streak": self._full_streak, "state": None if self._state is None else self._state.clone()}
+
+    def set_episode_state(self, saved: dict[str, Any]) -> None:
+        """Take up an episode where :meth:`episode_state` left it."""
+        self._share_streak, self._full_streak, self._state = int(saved["share_streak"]), int(saved["full_streak"]), saved["state"]
+
     def state(self) -> np.ndarray | None:
         """A recurrent network's state before the next observation ``[hidden]`` (float32,
         a copy: what the replay memory stores with that observation); None for a frame stack."""

@@ -12,8 +12,9 @@ server process over UDP through :class:`agent_client.env.VisionACCEnv`.
 
 Run folder ``runs/<name>/``: ``config.json``; ``scalars.csv`` (``step,name,value,wall_s``;
 TensorBoard events too if installed); ``latest.pt`` + ``replay-<step>.npz``, written at
-episode ends (a Ctrl-C waits for the episode's end), so a resumed run continues exactly; ``best.pt``, the policy with the best
-evaluation so far (< 5 MB).
+episode ends (a Ctrl-C waits for the episode's end) and at the step budget's end, which keeps
+the episode it cut (:func:`_redrive`), so a resumed run continues exactly; ``best.pt``, the
+policy with the best evaluation so far (< 5 MB).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from agent_client.actions import is_continuous, make_action_type
+from agent_client.errors import ResumeError
 from agent_client.launcher import Road
 from agent_client.rl.actor_critic import explore, noise_std
 from agent_client.rl.config import Config
@@ -48,6 +50,10 @@ class LoopState:
     episodes: int = 0
     recent_returns: list[float] = field(default_factory=list)
     eval_pending: bool = False  # stopped where an evaluation was due: the resumed run does it first
+    # The episode the step budget cut (None: the run ended at an episode's end): its reset options,
+    # the decisions taken, its return and length so far, and the acting policy's state. A run
+    # resumed with a larger budget re-drives it and finishes it, as a straight run would have.
+    cut: dict[str, Any] | None = None
 
 
 @dataclass
@@ -151,24 +157,32 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
 
     try:
         while state.global_step < cfg.total_steps:
-            options: dict[str, Any] = {"seed": int(rng.integers(2**31))}
-            if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
-                options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
-            obs, info = env.reset(options=options)
-            if learner.teacher is not None:
-                learner.teacher.reset()  # a lagged teacher's view starts over with the episode
-            learner.acting_policy.reset()
-            for frame in info.get("preroll", ()):
-                memory.warm(frame)
             policy = learner.acting_policy
-            memory.start(obs, info["gap"], policy.state())  # the gap: the auxiliary head's target, kept apart from obs
-            if state.episodes == 0:  # what the network sees, once
-                log.frames("charts/first_observation", obs["frames"], state.global_step)
-            episode_return, episode_len, done = 0.0, 0, False
+            if state.cut is not None:  # the budget cut this episode: take it up where it stopped
+                obs, info = _redrive(cfg, learner, env, memory, state.cut)
+                options, taken = state.cut["options"], list(state.cut["taken"])
+                episode_return, episode_len = float(state.cut["return"]), int(state.cut["length"])
+                state.cut = None
+            else:
+                options = {"seed": int(rng.integers(2**31))}
+                if len(cfg.train_trajectories) > 1:  # a mix: one drawn per episode (a single one draws nothing)
+                    options["trajectory"] = cfg.train_trajectories[int(rng.integers(len(cfg.train_trajectories)))]
+                obs, info = env.reset(options=options)
+                if learner.teacher is not None:
+                    learner.teacher.reset()  # a lagged teacher's view starts over with the episode
+                policy.reset()
+                for frame in info.get("preroll", ()):
+                    memory.warm(frame)
+                memory.start(obs, info["gap"], policy.state())  # the gap: the auxiliary head's target, kept apart from obs
+                if state.episodes == 0:  # what the network sees, once
+                    log.frames("charts/first_observation", obs["frames"], state.global_step)
+                taken, episode_return, episode_len = [], 0.0, 0
+            done = False
             while not done and state.global_step < cfg.total_steps:  # a stop waits for the episode's end
                 epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
                 decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
+                taken.append(list(decision))
                 memory.add(stored, reward, terminated, truncated, obs, info["gap"], policy.state())  # a recurrent state: the one before obs
                 episode_return += reward
                 episode_len += 1
@@ -180,6 +194,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 if step % cfg.target_sync_every == 0:
                     learner.sync_target()
                 bar.update(step, epsilon, float(np.mean(recent)) if recent else float("nan"))
+            if not done:  # cut by the step budget: kept, so that a larger budget finishes it
+                state.cut = {"options": options, "taken": taken, "return": episode_return, "length": episode_len, "policy": policy.episode_state()}
             if done:  # a whole episode (not one cut by the step budget)
                 state.episodes += 1
                 recent.append(episode_return)
@@ -200,6 +216,30 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     finally:
         bar.close()
     return time.perf_counter() - t_start
+
+
+def _redrive(cfg: Config, learner: Learner, env: Any, memory: ReplayMemory, cut: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Bring a fresh server to where the step budget cut an episode: reset it with the episode's
+    options and replay the decisions taken, the teacher watching as it did (its lag is state);
+    the acting policy takes up its saved state. Nothing is stored or learned, nothing drawn.
+
+    Raises:
+        ResumeError: the re-driven episode does not end on the frame the replay memory
+            holds (the simulator is no longer deterministic for these actions).
+    """
+    obs, info = env.reset(options=cut["options"])
+    if learner.teacher is not None:
+        learner.teacher.reset()
+    for action, target, continuous in cut["taken"]:
+        if isinstance(learner.teacher, PolicyTeacher):
+            learner.teacher.decide(obs, env.actions, cfg.teacher_brake)
+        elif learner.teacher is not None:
+            learner.teacher(info)
+        obs, _, _, _, info = Decision(int(action), target, continuous).step(env)
+    learner.acting_policy.set_episode_state(cut["policy"])
+    if not np.array_equal(obs["frames"][-1], memory.frames[(memory.total - 1) % memory.capacity]):
+        raise ResumeError(f"{learner.run_dir}: the episode cut at step {learner.saved.get('global_step')} re-drove to another camera frame than the replay memory holds")
+    return obs, info
 
 
 def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int | float]:

@@ -17,7 +17,8 @@ import torch
 from click.testing import CliRunner
 from proctools import descendants, job, servers_of, state, wait_gone
 
-from agent_client.rl.checkpoint import load_policy
+from agent_client.errors import ResumeError
+from agent_client.rl.checkpoint import atomic_save, load_policy
 from agent_client.rl.config import Config
 from agent_client.rl.train import train
 from vacc.cli import main
@@ -52,6 +53,48 @@ def test_resume_continues_exactly_as_an_uninterrupted_run(tmp_path):
     # the scalars of the split run line up with the whole run's
     names = lambda p: [(r["step"], r["name"]) for r in csv.DictReader(open(p / "scalars.csv")) if not r["name"].startswith("eval/")]  # noqa: E731
     assert names(tmp_path / "whole") == names(tmp_path / "split")
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"eval_trajectories": ("random:3",), "eval_seconds": 0.5},  # the first budget's end evaluates too: learning does not see it
+        # DAgger from a lagged law (its view is state) with the mean decision (its streaks are state)
+        {"reward": "eco", "action": "ramp-fine", "teacher": "acc-55", "teacher_lag": 0.5, "teacher_steps": 60, "decision": "mean"},
+        {"recurrent": "gru", "frame_stack": 2, "stack_stride": 1, "burn_in": 3, "sequence_length": 6},  # the GRU's state
+        {"action": "continuous", "recurrent": "gru", "n_step": 1, "frame_stack": 2, "stack_stride": 1, "burn_in": 3, "sequence_length": 6,
+         "conv_channels": (4, 8, 8), "hidden": 32},  # the recurrent actor's state, a continuous decision re-driven
+    ],
+    ids=["ddqn", "dagger-lagged-mean", "gru", "actor-critic-gru"],
+)
+def test_a_budget_that_ends_mid_episode_then_grows_continues_exactly_as_a_straight_run(tmp_path, changes):
+    """A run whose step budget ended inside an episode, resumed with a larger one, re-drives and
+    finishes that episode: it used to draw a new one, so a 150 k run extended to 600 k was not the 600 k run."""
+    cfg = Config(**{**TINY.__dict__, **changes})
+    train(cfg, tmp_path / "whole", progress=False)
+    first = train(Config(**{**cfg.__dict__, "total_steps": 45}), tmp_path / "split", progress=False)  # episodes of 30 steps
+    cut = _state(tmp_path / "split")["state"]["cut"]
+    assert first["steps"] == 45 and cut["length"] == 15 and len(cut["taken"]) == 15
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = _state(tmp_path / "whole"), _state(tmp_path / "split")
+    assert a["state"]["global_step"] == b["state"]["global_step"] == 120
+    assert a["state"]["episodes"] == b["state"]["episodes"] and a["state"]["recent_returns"] == b["state"]["recent_returns"]
+    assert a["rng"]["numpy"] == b["rng"]["numpy"]
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    rows = lambda p, kind: [(r["step"], r["name"], r["value"]) for r in csv.DictReader(open(p / "scalars.csv")) if r["name"].startswith(kind)]  # noqa: E731
+    assert rows(tmp_path / "whole", "charts/episodic") == rows(tmp_path / "split", "charts/episodic")
+    last = lambda p: [row for row in rows(p, "eval/") if row[0] == "120"]  # noqa: E731
+    assert last(tmp_path / "whole") == last(tmp_path / "split") and (last(tmp_path / "whole") or not cfg.eval_trajectories)
+
+
+def test_a_cut_episode_that_re_drives_elsewhere_is_refused_in_one_line(tmp_path):
+    train(Config(**{**TINY.__dict__, "total_steps": 45}), tmp_path / "run", progress=False)
+    ckpt = torch.load(tmp_path / "run" / "latest.pt", weights_only=True)
+    ckpt["state"]["cut"]["taken"][3][0] = (ckpt["state"]["cut"]["taken"][3][0] + 7) % 21  # another action than was taken
+    atomic_save(ckpt, tmp_path / "run" / "latest.pt")  # with its digest: a file that reads, telling another episode
+    with pytest.raises(ResumeError, match=r"the episode cut at step 45 re-drove to another camera frame"):
+        train(TINY, tmp_path / "run", resume=True, progress=False)
 
 
 def test_a_preroll_run_trains_evaluates_and_resumes_exactly(tmp_path):
