@@ -331,7 +331,7 @@ class ActorPolicy:
 
     def set_episode_state(self, saved: dict[str, Any]) -> None:
         """Take up an episode where :meth:`episode_state` left it."""
-        self._state = saved["state"]
+        self._state = None if saved["state"] is None else saved["state"].to(self.q.device)  # saved read onto the CPU
 
     def state(self) -> np.ndarray | None:
         """A recurrent actor's state before the next observation ``[hidden]`` (float32), else None

@@ -405,7 +405,8 @@ class Policy:
 
     def set_episode_state(self, saved: dict[str, Any]) -> None:
         """Take up an episode where :meth:`episode_state` left it."""
-        self._share_streak, self._full_streak, self._state = int(saved["share_streak"]), int(saved["full_streak"]), saved["state"]
+        self._share_streak, self._full_streak = int(saved["share_streak"]), int(saved["full_streak"])
+        self._state = None if saved["state"] is None else saved["state"].to(self.q.device)  # saved read onto the CPU
 
     def state(self) -> np.ndarray | None:
         """A recurrent network's state before the next observation ``[hidden]`` (float32,

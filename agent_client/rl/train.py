@@ -147,6 +147,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
     bar = Progress(cfg.total_steps, enabled=progress, initial=state.global_step)
     recent = deque(state.recent_returns, maxlen=20)
     grid = _Schedule.at(state.global_step, cfg)
+    if state.cut is not None and state.cut["eval_due"]:
+        grid.next_eval = state.global_step  # due before the cut: a straight run evaluates at the cut episode's end
     if state.eval_pending:  # where the uninterrupted run evaluated, with the same weights
         learner.evaluate(state.global_step)
         grid.last_eval_step, state.eval_pending = state.global_step, False
@@ -195,7 +197,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                     learner.sync_target()
                 bar.update(step, epsilon, float(np.mean(recent)) if recent else float("nan"))
             if not done:  # cut by the step budget: kept, so that a larger budget finishes it
-                state.cut = {"options": options, "taken": taken, "return": episode_return, "length": episode_len, "policy": policy.episode_state()}
+                state.cut = {"options": options, "taken": taken, "return": episode_return, "length": episode_len, "policy": policy.episode_state(),
+                             "eval_due": bool(cfg.eval_trajectories) and state.global_step >= grid.next_eval}  # fmt: skip
             if done:  # a whole episode (not one cut by the step budget)
                 state.episodes += 1
                 recent.append(episode_return)
