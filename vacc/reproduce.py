@@ -114,12 +114,30 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
         raise KeyboardInterrupt
     output = stage.options["output"]
     if output.startswith("eval:") and not opts["smoke"]:
-        return run / "evals" / f"{output.removeprefix('eval:')}.pt"
+        return _kept_evaluation(stage, run, int(output.removeprefix("eval:")))
     if output == "best" and (run / "best.pt").is_file():
         return run / "best.pt"
     if output == "best" and not opts["smoke"]:
         raise click.ClickException(f"stage {stage.name}: no evaluation passed, so {run / 'best.pt'} was never written")
     return run / "latest.pt"  # exported as a policy by the caller (--smoke: for any output)
+
+
+def _kept_evaluation(stage: Stage, run: Path, step: int) -> Path:
+    """The evaluation ``eval:STEP`` names, or, where a rebuild that is not bit for bit ended its
+    episodes elsewhere (evaluations wait for an episode's end), the kept one nearest it, said in a line.
+
+    Raises:
+        click.ClickException: the run kept no evaluation at all.
+    """
+    exact = run / "evals" / f"{step}.pt"
+    if exact.is_file():
+        return exact
+    kept = sorted((abs(int(p.stem) - step), -int(p.stem), p) for p in (run / "evals").glob("*.pt") if p.stem.isdigit())
+    if not kept:
+        raise click.ClickException(f"stage {stage.name}: output eval:{step}, but {run / 'evals'} holds no kept evaluation (keep_evals must be true)")
+    nearest = kept[0][2]
+    click.echo(f"vacc reproduce: stage {stage.name}: no evaluation at step {step}; took the nearest, at step {nearest.stem} (this run is not the recorded one bit for bit)", err=True)
+    return nearest
 
 
 def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:

@@ -42,10 +42,14 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
     from agent_client.rl.config import config_dict
 
     models = Path(__file__).resolve().parents[2] / "models"
-    for name, stage, parent in (("ice-gap", "bm10", "g2"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1")):
+    chains = (("ice-gap", "bm10", "g2"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1"), ("ice-eco", "busy-road", "sg-decide"),
+              ("ev-gap", "h05c", "sm"), ("ev-eco", "calm", "mean3"))  # fmt: skip
+    for name, stage, parent in chains:
         path = models / f"{name}.pt"
         shipped = config_dict(checkpoint_config(read_checkpoint(path), path))
         cfg = config_dict(stage_config(load_recipe(name).stage(stage), {parent: shipped["init_from"]}))
+        if name == "ev-eco":  # it trained with the brake share off; the stage brake-share set 0.1 on the mean's weights
+            cfg["decision_brake_share"] = load_recipe(name).stage("brake-share").options["brake_share"]
         assert cfg == shipped, name
 
 

@@ -47,6 +47,25 @@ def test_seed_shift_rule():
     assert shifted_seed(72, r, r.seed) == 72 and shifted_seed(72, r, r.seed + 2) == 72 + 2 * SEED_STRIDE
 
 
+def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, capsys):
+    import click
+
+    from vacc.recipes import load_recipe
+    from vacc.reproduce import _kept_evaluation
+
+    stage = load_recipe("ice-eco").stage("mid10")
+    (tmp_path / "evals").mkdir()
+    with pytest.raises(click.ClickException, match="stage mid10: output eval:25000, but .* holds no kept evaluation"):
+        _kept_evaluation(stage, tmp_path, 25000)
+    for step in (20110, 24990, 25030, 30000):
+        (tmp_path / "evals" / f"{step}.pt").write_bytes(b"")
+    assert _kept_evaluation(stage, tmp_path, 25000).name == "24990.pt"  # the nearest
+    (tmp_path / "evals" / "25010.pt").write_bytes(b"")
+    assert _kept_evaluation(stage, tmp_path, 25000).name == "25010.pt"  # as near: the later
+    (tmp_path / "evals" / "25000.pt").write_bytes(b"")
+    assert _kept_evaluation(stage, tmp_path, 25000).name == "25000.pt" and capsys.readouterr().err.count("took the nearest") == 2
+
+
 def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None:
     assert returncode == 0, out[-2000:]
     model = torch.load(folder / f"{name}.pt", weights_only=True)
