@@ -4,10 +4,19 @@ from __future__ import annotations
 
 import os
 import platform
+import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["cpu_model", "describe", "label"]
+__all__ = ["CPU_PATHS", "cpu_model", "describe", "label", "use_cpu_path"]
+
+CPU_PATHS: dict[str, dict[str, str]] = {
+    # torch's own kernels, MKL and oneDNN kept to AVX2, which every x86-64 CPU since 2013 runs: an
+    # AVX-512 CPU's kernels round otherwise, and a training drifts apart within 5 k steps
+    "avx2": {"ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
+    "native": {},  # the machine's widest kernels: faster on some CPUs, bit for bit only with the same CPU
+}
+"""The CPU code paths a training can be pinned to (``vacc reproduce --cpu-path``)."""
 
 
 def cpu_model() -> str:
@@ -22,13 +31,34 @@ def cpu_model() -> str:
 
 
 def describe(with_gpu: bool = True) -> dict[str, Any]:
-    """``{"cpu", "cores", "gpu"}``; ``gpu`` is the first CUDA device's name, or None."""
+    """``{"cpu", "cores", "gpu"}``; ``gpu`` is the first CUDA device's name, or None; with torch
+    loaded, also ``kernels``, the CPU capability its kernels run at (``AVX2``, ``AVX512``)."""
     gpu = None
     if with_gpu:
         import torch
 
         gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
-    return {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu}
+    found = {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu}
+    if "torch" in sys.modules:
+        found["kernels"] = sys.modules["torch"].backends.cpu.get_cpu_capability()
+    return found
+
+
+def use_cpu_path(name: str) -> str:
+    """Pin this process's and its children's kernels to :data:`CPU_PATHS` ``[name]``; returns
+    the capability torch's kernels now run at. It holds only where torch has computed nothing yet.
+
+    Raises:
+        RuntimeError: torch already runs this process's kernels at another capability.
+    """
+    import torch
+
+    os.environ.update(CPU_PATHS[name])
+    got = torch.backends.cpu.get_cpu_capability()
+    want = CPU_PATHS[name].get("ATEN_CPU_CAPABILITY", "").upper()
+    if want and got not in (want, "DEFAULT"):  # DEFAULT: a CPU without it
+        raise RuntimeError(f"torch already runs at {got} in this process: start it with " + " ".join(f"{k}={v}" for k, v in CPU_PATHS[name].items()))
+    return got
 
 
 def label(host: dict[str, Any]) -> str:

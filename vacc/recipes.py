@@ -3,7 +3,8 @@
 A recipe is an ordered list of stages, each with every option written out, and the
 checks (gates) its model must pass. Its layout::
 
-    [recipe]                 name, scenario ("ice" | "ev"), description, seed
+    [recipe]                 name, scenario ("ice" | "ev"), description, seed, and cpu_path
+                             (optional: "avx2", the default, or "native"; vacc.host.CPU_PATHS)
     [ablation]               note: which stages are candidates to drop (optional)
     [[stage]]                name, kind, note and known_weights (optional), then the kind's keys:
       train                  every Config field by name (``vacc train``'s options, snake_case;
@@ -29,7 +30,7 @@ A stage's ``known_weights`` is the SHA-256 of the weights that stage made when t
 first built (:func:`vacc.reproduce.weights_sha256` of a file kept in git history): a rebuild
 with the recipe's own seed says whether it made them again bit for bit. It records an
 outcome, not an input, so it is left out of the digest: writing one in does not invalidate
-a run under way.
+a run under way. ``cpu_path`` says how the stages run, not what they are, so it is left out too.
 
 This module parses, checks and digests; :mod:`vacc.reproduce` runs a recipe and
 :mod:`vacc.gates` checks its model.
@@ -46,6 +47,7 @@ from typing import Any, NamedTuple
 
 from agent_client.rl.config import DECISIONS, Config, ConfigError, config_dict
 from protocol.scenarios import LEAD_SCENARIOS, SCENARIOS
+from vacc.host import CPU_PATHS
 from vacc.runs import parse_seeds
 
 __all__ = [
@@ -55,6 +57,9 @@ __all__ = [
 
 RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
 STAGE_REF = "stage:"
+DEFAULT_CPU_PATH = "avx2"
+"""A recipe's kernels where it names none: the path every x86-64 CPU since 2013 runs, so that
+rebuilds on different machines agree bit for bit (:data:`vacc.host.CPU_PATHS`)."""
 NONE = "none"
 """How a recipe writes an unset (None) train option: TOML has no null."""
 
@@ -71,7 +76,8 @@ TRAIN_REFS = ("init_from", "teacher_policy")  # the Config fields that name a ch
 OPTIONAL_KEYS = ("note", "known_weights")
 COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
 OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
-RECIPE_KEYS = ("name", "scenario", "description", "seed")
+RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path")
+HOW_KEYS = ("cpu_path",)  # how the stages run, not what they are: not part of the digest
 GATE_KEYS: dict[str, tuple[str, ...]] = {
     "tests": ("seed", "max_gap_rmse_m"),
     "safety": ("seeds", "scenarios"),
@@ -107,6 +113,7 @@ class Recipe(NamedTuple):
     stages: tuple[Stage, ...]
     gates: dict[str, dict[str, Any]]
     digest: str
+    cpu_path: str = DEFAULT_CPU_PATH  # vacc.host.CPU_PATHS: the kernels its train stages run on
 
     def stage(self, name: str) -> Stage:
         """The stage called ``name``.
@@ -170,7 +177,7 @@ def _unknown(path: Path, where: str, table: dict[str, Any], allowed: tuple[str, 
     extra = sorted(set(table) - set(allowed))
     if extra:
         raise _bad(path, f"{where}.{extra[0]}", f"unknown key; expected {', '.join(allowed)}")
-    missing = [k for k in allowed if k not in table and k not in OPTIONAL_KEYS]
+    missing = [k for k in allowed if k not in table and k not in OPTIONAL_KEYS + HOW_KEYS]
     if missing:
         raise _bad(path, f"{where}.{missing[0]}", "missing (every option is written out)")
 
@@ -194,6 +201,9 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
         raise _bad(path, "recipe.seed", f"{head['seed']!r} is not a whole number >= 0")
     if not isinstance(head["name"], str) or not head["name"]:
         raise _bad(path, "recipe.name", "must be a non-empty string")
+    cpu_path = head.get("cpu_path", DEFAULT_CPU_PATH)
+    if cpu_path not in CPU_PATHS:
+        raise _bad(path, "recipe.cpu_path", f"{cpu_path!r} is not one of {', '.join(CPU_PATHS)}")
     if "ablation" in content and not isinstance(content["ablation"], dict):
         raise _bad(path, "ablation", "must be a table")
     raw_stages = content.get("stage")
@@ -203,8 +213,9 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
     for i, raw in enumerate(raw_stages):
         stages.append(_parse_stage(path, i, raw, [s.name for s in stages]))
     gates = _parse_gates(path, content.get("gates", {}))
-    inputs = {**content, "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS} for raw in raw_stages]}
-    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs))
+    inputs = {**content, "recipe": {k: v for k, v in head.items() if k not in HOW_KEYS},
+              "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS} for raw in raw_stages]}  # fmt: skip
+    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs), cpu_path)
 
 
 def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:

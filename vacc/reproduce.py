@@ -45,7 +45,7 @@ from agent_client.rl.checkpoint import (
 from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
-from vacc.host import describe, label
+from vacc.host import CPU_PATHS, describe, label, use_cpu_path
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
@@ -202,10 +202,11 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
     Raises:
         click.ClickException: ``out`` holds another recipe's or another seed's run.
     """
-    mine = {"recipe": recipe.name, "recipe_digest": recipe.digest, "seed": opts["seed"], "smoke": opts["smoke"]}
+    mine = {"recipe": recipe.name, "recipe_digest": recipe.digest, "seed": opts["seed"], "smoke": opts["smoke"], "cpu_path": opts["cpu_path"]}
     marker = out / "reproduce.json"
     if marker.is_file():
         theirs = json.loads(marker.read_text())
+        theirs.setdefault("cpu_path", "native")  # a run begun before the kernels were pinned
         differ = [k for k in mine if theirs.get(k) != mine[k]]
         if differ:
             raise click.ClickException(f"{out} holds a run with another {differ[0]} ({theirs.get(differ[0])!r}, here {mine[differ[0]]!r}): give a new --out")
@@ -215,9 +216,10 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
 
 
 def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: int = 1, use_ray: bool = False,
-              smoke: bool = False, progress: bool = True, jobs: int = 2) -> dict[str, Any]:  # fmt: skip
+              smoke: bool = False, progress: bool = True, jobs: int = 2, cpu_path: str | None = None) -> dict[str, Any]:  # fmt: skip
     """Run every stage of ``recipe`` into ``out``, copy the last one's policy to
     ``out/<model>.pt`` and check it against the gates (``out/gates/gates.json``).
+    The kernels run on ``cpu_path`` (:data:`vacc.host.CPU_PATHS`; None: the recipe's).
 
     Returns:
         The gate report (:func:`vacc.gates.evaluate_gates`).
@@ -227,7 +229,14 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     """
     from vacc.gates import evaluate_gates
 
-    opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress}
+    opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress,
+            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path}  # fmt: skip
+    try:
+        kernels = use_cpu_path(opts["cpu_path"])
+    except RuntimeError as exc:
+        raise click.ClickException(f"--cpu-path {opts['cpu_path']}: {exc}") from None
+    if progress and opts["cpu_path"] != "native" and kernels != opts["cpu_path"].upper():
+        click.echo(f"vacc reproduce: this CPU has no {opts['cpu_path'].upper()}: its weights will not be the known ones bit for bit", err=True)
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
@@ -318,8 +327,10 @@ def timing_line(timing: dict[str, Any]) -> str:
 @click.option("--ray", "use_ray", is_flag=True, help="Run the train stages' servers and actors as Ray actors (vacc[ray]).")
 @click.option("--smoke", is_flag=True, help="Every stage for a few dozen steps, the gates in quick mode: checks the recipe runs.")
 @click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
+@click.option("--cpu-path", type=click.Choice(tuple(CPU_PATHS)), default=None,
+              help="The CPU kernels: avx2 (rebuilds agree across x86-64 machines) or native (the widest, bit for bit only on the same CPU). Default: the recipe's cpu_path (avx2).")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
-def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, quiet: bool) -> None:
+def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, cpu_path: str | None, quiet: bool) -> None:
     """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
     order into OUT/<stage>/, then OUT/<model>.pt, its gate report and its wall-clock
     (OUT/timing.json). Stopped at any point
@@ -334,9 +345,10 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
         raise click.ClickException(str(exc)) from None
     with stop_handlers("vacc reproduce", "; the same command continues"):
         try:
-            report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs)
+            report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs, cpu_path=cpu_path)
         except KeyboardInterrupt:
-            click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}" + (" --smoke" if smoke else ""), err=True)
+            again = (" --smoke" if smoke else "") + (f" --cpu-path {cpu_path}" if cpu_path else "")
+            click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}{again}", err=True)
             raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
     click.echo(timing_line(report["timing"]))

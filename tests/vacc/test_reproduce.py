@@ -76,7 +76,7 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     for stage_dir in (p for p in folder.iterdir() if (p / "done.json").is_file()):
         done = json.loads((stage_dir / "done.json").read_text())
         assert done["stage"] == stage_dir.name and all(len(p["sha256"]) == 64 for p in done["parents"])
-        assert done["host"]["cores"] >= 1
+        assert done["host"]["cores"] >= 1 and done["host"]["kernels"] != "AVX512"  # pinned to the recipe's AVX2 (DEFAULT: a CPU without it)
         if done["kind"] == "train":  # its time is its run's, from the scalars (the smoke run: one session)
             logged = max(float(r["wall_s"]) for r in csv.DictReader(open(stage_dir / "run" / "scalars.csv")))
             assert done["wall_s"] == pytest.approx(logged, abs=0.05) and logged > 0

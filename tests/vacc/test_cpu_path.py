@@ -1,0 +1,53 @@
+"""The CPU kernels a rebuild is pinned to (`vacc reproduce --cpu-path`): each process starts fresh,
+since torch fixes its kernels at its first computation."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+SUM = """
+import hashlib, sys, torch
+from vacc.host import use_cpu_path
+if sys.argv[1] == "late":
+    torch.ones(3).add_(1)  # torch has computed: its kernels are fixed
+kernels = use_cpu_path(sys.argv[2])
+torch.manual_seed(0)
+conv = torch.nn.Conv2d(8, 16, 5, stride=2)
+out = conv(torch.randn(16, 8, 84, 84))
+out.square().mean().backward()
+print(kernels, hashlib.sha256(out.detach().numpy().tobytes() + conv.weight.grad.numpy().tobytes()).hexdigest())
+"""
+
+
+def _run(when: str, path: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", SUM, when, path], capture_output=True, text=True, timeout=120)
+
+
+def _native() -> str:
+    return subprocess.run([sys.executable, "-c", "import torch; print(torch.backends.cpu.get_cpu_capability())"],
+                          capture_output=True, text=True, timeout=120, check=True).stdout.strip()  # fmt: skip
+
+
+def test_avx2_pins_the_kernels_and_their_rounding():
+    pinned = _run("early", "avx2")
+    assert pinned.returncode == 0, pinned.stderr
+    kernels, digest = pinned.stdout.split()
+    assert kernels in ("AVX2", "DEFAULT")  # DEFAULT: a CPU without AVX2
+    assert _run("early", "avx2").stdout.split()[1] == digest  # the same, run after run
+    native = _run("early", "native")
+    assert native.stdout.split()[0] == _native()
+    if _native() != "AVX2":  # on an AVX-512 CPU the widest kernels round otherwise, which is why recipes pin them
+        assert native.stdout.split()[1] != digest
+
+
+def test_pinning_after_torch_computed_is_refused_naming_the_variables():
+    if _native() in ("AVX2", "DEFAULT"):
+        pytest.skip("this CPU's own kernels are the pinned ones: nothing to refuse")
+    late = _run("late", "avx2")
+    assert late.returncode != 0 and f"torch already runs at {_native()} in this process" in late.stderr
+    assert "ATEN_CPU_CAPABILITY=avx2 MKL_ENABLE_INSTRUCTIONS=AVX2 ONEDNN_MAX_CPU_ISA=AVX2" in late.stderr
