@@ -3,6 +3,7 @@ since torch fixes its kernels at its first computation."""
 
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 
@@ -28,6 +29,7 @@ def _run(when: str, path: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", SUM, when, path], capture_output=True, text=True, timeout=120)
 
 
+@functools.cache
 def _native() -> str:
     return subprocess.run([sys.executable, "-c", "import torch; print(torch.backends.cpu.get_cpu_capability())"],
                           capture_output=True, text=True, timeout=120, check=True).stdout.strip()  # fmt: skip

@@ -18,6 +18,8 @@ MODELS = Path(__file__).resolve().parents[2] / "models"
 
 def _recipe(known: str | None):
     content = tomllib.loads((RECIPES_DIR / "ev-force.toml").read_text())
+    for stage in content["stage"]:
+        stage.pop("known_weights", None)  # only the first stage's, as given
     if known:
         content["stage"][0]["known_weights"] = known
     return parse_recipe(content, Path("recipes/ev-force.toml"))
