@@ -12,7 +12,7 @@ __all__ = ["CPU_PATHS", "cpu_model", "describe", "label", "use_cpu_path"]
 
 CPU_PATHS: dict[str, dict[str, str]] = {
     # torch's own kernels, MKL and oneDNN kept to AVX2, which every x86-64 CPU since 2013 runs: an
-    # AVX-512 CPU's kernels round otherwise, and a training drifts apart within 5 k steps
+    # AVX-512 CPU's kernels round otherwise, and a training drifts apart within 10 k steps
     "avx2": {"ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
     "native": {},  # the machine's widest kernels: faster on some CPUs, bit for bit only with the same CPU
 }
