@@ -14,6 +14,8 @@ CPU_PATHS: dict[str, dict[str, str]] = {
     # torch's own kernels, MKL and oneDNN kept to AVX2, which every x86-64 CPU since 2013 runs: an
     # AVX-512 CPU's kernels round otherwise, and a training drifts apart within 10 k steps
     "avx2": {"ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "ONEDNN_MAX_CPU_ISA": "AVX2"},
+    # AVX-512's common level (no VNNI or BF16, which f32 training does not use): where a stage was made on one
+    "avx512": {"ATEN_CPU_CAPABILITY": "avx512", "MKL_ENABLE_INSTRUCTIONS": "AVX512", "ONEDNN_MAX_CPU_ISA": "AVX512_CORE"},
     "native": {},  # the machine's widest kernels: faster on some CPUs, bit for bit only with the same CPU
 }
 """The CPU code paths a training can be pinned to (``vacc reproduce --cpu-path``)."""

@@ -6,7 +6,7 @@ checks (gates) its model must pass. Its layout::
     [recipe]                 name, scenario ("ice" | "ev"), description, seed, and cpu_path
                              (optional: "avx2", the default, or "native"; vacc.host.CPU_PATHS)
     [ablation]               note: which stages are candidates to drop (optional)
-    [[stage]]                name, kind, note and known_weights (optional), then the kind's keys:
+    [[stage]]                name, kind, note, known_weights and cpu_path (optional), then the kind's keys:
       train                  every Config field by name (``vacc train``'s options, snake_case;
                              None written "none"), and output = "best" | "latest" | "eval:STEP"
       average                inputs = ["stage:a", "stage:b"], weights = [1.0, 1.0]
@@ -73,7 +73,7 @@ STAGE_KINDS: dict[str, tuple[str, ...]] = {
 """Each stage kind's keys besides name, kind and note (all required)."""
 
 TRAIN_REFS = ("init_from", "teacher_policy")  # the Config fields that name a checkpoint
-OPTIONAL_KEYS = ("note", "known_weights")
+OPTIONAL_KEYS = ("note", "known_weights", "cpu_path")
 COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
 OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
 RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path")
@@ -100,6 +100,7 @@ class Stage(NamedTuple):
     options: dict[str, Any]
     note: str
     known_weights: str | None = None
+    cpu_path: str | None = None  # its kernels where they are not the recipe's (the machine it was first made on)
 
 
 class Recipe(NamedTuple):
@@ -214,7 +215,7 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
         stages.append(_parse_stage(path, i, raw, [s.name for s in stages]))
     gates = _parse_gates(path, content.get("gates", {}))
     inputs = {**content, "recipe": {k: v for k, v in head.items() if k not in HOW_KEYS},
-              "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS} for raw in raw_stages]}  # fmt: skip
+              "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS + HOW_KEYS} for raw in raw_stages]}  # fmt: skip
     return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs), cpu_path)
 
 
@@ -240,7 +241,10 @@ def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
     known = raw.get("known_weights")
     if known is not None and not (isinstance(known, str) and len(known) == 64 and all(c in "0123456789abcdef" for c in known)):
         raise _bad(path, f"{where}.known_weights", f"{known!r} is not a SHA-256 (64 lowercase hex digits)")
-    stage = Stage(name, kind, options, str(raw.get("note", "")), known)
+    cpu_path = raw.get("cpu_path")
+    if cpu_path is not None and (kind != "train" or cpu_path not in CPU_PATHS):
+        raise _bad(path, f"{where}.cpu_path", f"{cpu_path!r}: a train stage's kernels, one of {', '.join(CPU_PATHS)}")
+    stage = Stage(name, kind, options, str(raw.get("note", "")), known, cpu_path)
     if kind == "train":
         _check_train(path, where, stage)
     else:

@@ -24,8 +24,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +54,7 @@ from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
            "timing_line", "duration", "identity", "identity_line"]
 
+PINNED = "VACC_CPU_PATH"  # the kernels this process was pinned to (a fresh one starts unpinned)
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
 
@@ -154,6 +158,42 @@ def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:
         export_policy(inputs[stage_refs(stage)[0]], dst)
 
 
+def _done_record(out: Path, stage: Stage) -> dict[str, Any] | None:
+    """A finished stage's ``done.json``, where it matches the file it made; else None."""
+    record_file, dst = out / stage.name / "done.json", out / stage.name / f"{stage.name}.pt"
+    if record_file.is_file() and dst.is_file():
+        record = json.loads(record_file.read_text())
+        if record.get("sha256") == file_sha256(dst):
+            return dict(record)
+    return None
+
+
+def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool) -> None:
+    """Run the next train stage on :data:`~vacc.host.CPU_PATHS` ``[path]``: pinned in this process
+    while torch has computed nothing, else in a fresh one (``reexec``: this command again, whose
+    finished stages are kept), since torch fixes its kernels at its first computation.
+
+    Raises:
+        click.ClickException: a fresh process is needed and ``reexec`` is None.
+    """
+    current = os.environ.get(PINNED)
+    if current == path:
+        return
+    if current is None:
+        try:
+            use_cpu_path(path)
+            os.environ[PINNED] = path
+            return
+        except RuntimeError:
+            pass
+    if reexec is None:
+        raise click.ClickException(f"the next stage runs on {path} kernels, this process on {current or 'others'}: run vacc reproduce again")
+    if progress:
+        click.echo(f"vacc reproduce: the next stage runs on {path} kernels: going on in a fresh process (the finished stages are kept)", err=True)
+    env = {k: v for k, v in os.environ.items() if not any(k in p for p in CPU_PATHS.values())}
+    reexec({**env, **CPU_PATHS[path], PINNED: path})
+
+
 def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any]) -> dict[str, Any]:
     """Run one stage (or skip it when its ``done.json`` matches its file); returns its record.
 
@@ -162,11 +202,9 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     """
     sdir = out / stage.name
     dst = sdir / f"{stage.name}.pt"
-    record_file = sdir / "done.json"
-    if record_file.is_file() and dst.is_file():
-        record = json.loads(record_file.read_text())
-        if record.get("sha256") == file_sha256(dst):
-            return record
+    record = _done_record(out, stage)
+    if record is not None:
+        return record
     sdir.mkdir(parents=True, exist_ok=True)
     dst.unlink(missing_ok=True)  # a stage stopped after its write and before done.json: made again, the same
     inputs = {name: str(out / name / f"{name}.pt") for name in stage_refs(stage)}
@@ -192,7 +230,7 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     stamp_lineage(dst, lineage)
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
               "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe()}  # fmt: skip
-    record_file.write_text(json.dumps(record, indent=1) + "\n")
+    (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
     return record
 
 
@@ -216,10 +254,13 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
 
 
 def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: int = 1, use_ray: bool = False,
-              smoke: bool = False, progress: bool = True, jobs: int = 2, cpu_path: str | None = None) -> dict[str, Any]:  # fmt: skip
+              smoke: bool = False, progress: bool = True, jobs: int = 2, cpu_path: str | None = None,
+              reexec: Callable[[dict[str, str]], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Run every stage of ``recipe`` into ``out``, copy the last one's policy to
     ``out/<model>.pt`` and check it against the gates (``out/gates/gates.json``).
-    The kernels run on ``cpu_path`` (:data:`vacc.host.CPU_PATHS`; None: the recipe's).
+    Each train stage runs on ``cpu_path``'s kernels (:data:`vacc.host.CPU_PATHS`; None: the
+    stage's own ``cpu_path``, else the recipe's); where they change, ``reexec`` starts this run
+    again in a fresh process with them (see :func:`_pin_kernels`).
 
     Returns:
         The gate report (:func:`vacc.gates.evaluate_gates`).
@@ -231,12 +272,6 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
 
     opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress,
             "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path}  # fmt: skip
-    try:
-        kernels = use_cpu_path(opts["cpu_path"])
-    except RuntimeError as exc:
-        raise click.ClickException(f"--cpu-path {opts['cpu_path']}: {exc}") from None
-    if progress and opts["cpu_path"] != "native" and kernels != opts["cpu_path"].upper():
-        click.echo(f"vacc reproduce: this CPU has no {opts['cpu_path'].upper()}: its weights will not be the known ones bit for bit", err=True)
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
@@ -244,6 +279,12 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
             raise KeyboardInterrupt
         if progress:
             click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
+        if stage.kind == "train" and _done_record(out, stage) is None:
+            path = cpu_path or stage.cpu_path or recipe.cpu_path  # --cpu-path, else the stage's, else the recipe's
+            _pin_kernels(path, reexec, progress)
+            kernels = describe(with_gpu=False)["kernels"]
+            if progress and path != "native" and kernels != path.upper():
+                click.echo(f"vacc reproduce: this CPU runs {kernels}, not {path.upper()}: stage {stage.name} will not make the known weights bit for bit", err=True)
         done[stage.name] = run_stage(recipe, stage, out, done, opts)
         if progress and stage.known_weights and not _not_compared(recipe, opts):  # hours before the end's line
             same = done[stage.name]["weights_sha256"] == stage.known_weights
@@ -319,6 +360,13 @@ def timing_line(timing: dict[str, Any]) -> str:
     return f"wall-clock: {', '.join(parts)}, gates {duration(timing['gates_s'])}; total {total} on {' / '.join(sorted(hosts))}"
 
 
+def _reexec_command(env: dict[str, str]) -> None:
+    """This ``vacc reproduce`` command again, in place of this process (same PID), with ``env``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "vacc", *sys.argv[1:]], env)
+
+
 @click.command("reproduce")
 @click.argument("model_or_recipe")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder of the run: one subfolder per stage, the model, the gates.")
@@ -345,7 +393,8 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
         raise click.ClickException(str(exc)) from None
     with stop_handlers("vacc reproduce", "; the same command continues"):
         try:
-            report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs, cpu_path=cpu_path)
+            report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs,
+                               cpu_path=cpu_path, reexec=_reexec_command)  # fmt: skip
         except KeyboardInterrupt:
             again = (" --smoke" if smoke else "") + (f" --cpu-path {cpu_path}" if cpu_path else "")
             click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}{again}", err=True)

@@ -71,7 +71,13 @@ def test_the_cpu_path_is_checked_defaults_to_avx2_and_is_left_out_of_the_digest(
     native = parse_recipe(c, Path("recipes/x.toml"))
     assert (plain.cpu_path, native.cpu_path) == ("avx2", "native") and plain.digest == native.digest  # how it runs, not what it is
     c["recipe"]["cpu_path"] = "avx1024"
-    _refuse(c, "recipe.cpu_path", "'avx1024' is not one of avx2, native")
+    _refuse(c, "recipe.cpu_path", "'avx1024' is not one of avx2, avx512, native")
+    c = _content()
+    c["stage"][1]["cpu_path"] = "avx512"  # a stage made on other kernels than the recipe's
+    staged = parse_recipe(c, Path("recipes/x.toml"))
+    assert staged.stages[1].cpu_path == "avx512" and staged.stages[0].cpu_path is None and staged.digest == plain.digest
+    c["stage"][1]["cpu_path"] = "avx1024"
+    _refuse(c, "stage 'ev-gap'.cpu_path", "a train stage's kernels")
 
 
 def _content() -> dict:

@@ -66,6 +66,22 @@ def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, 
     assert _kept_evaluation(stage, tmp_path, 25000).name == "25000.pt" and capsys.readouterr().err.count("took the nearest") == 2
 
 
+@pytest.mark.slow
+def test_a_stage_on_other_kernels_goes_on_in_a_fresh_process(tmp_path):
+    """One chain may mix kernels (ice-gap's from-scratch stage was made on AVX2, its safety
+    fine-tune on AVX-512); torch fixes its kernels at its first computation, so the run starts
+    itself again with the stage's, keeping the stages it finished."""
+    recipe = tmp_path / "mixed.toml"
+    recipe.write_text((RECIPES_DIR / "ev-force.toml").read_text().replace('name = "ev-force"\nkind = "train"\n', 'name = "ev-force"\nkind = "train"\ncpu_path = "native"\n'))
+    native = subprocess.run([sys.executable, "-c", "import torch; print(torch.backends.cpu.get_cpu_capability())"], capture_output=True, text=True, check=True).stdout.strip()
+    proc = _reproduce(str(recipe), tmp_path / "run")
+    out = _finish(proc)
+    assert proc.returncode == 0, out[-2000:]
+    kernels = {name: json.loads((tmp_path / "run" / name / "done.json").read_text())["host"]["kernels"] for name in ("gap-scratch", "ev-gap", "ev-force", "mix")}
+    pinned = "DEFAULT" if native == "DEFAULT" else "AVX2"
+    assert kernels == {"gap-scratch": pinned, "ev-gap": pinned, "ev-force": native, "mix": pinned}, kernels
+
+
 def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None:
     assert returncode == 0, out[-2000:]
     model = torch.load(folder / f"{name}.pt", weights_only=True)
