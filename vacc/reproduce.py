@@ -376,7 +376,7 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.option("--smoke", is_flag=True, help="Every stage for a few dozen steps, the gates in quick mode: checks the recipe runs.")
 @click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
 @click.option("--cpu-path", type=click.Choice(tuple(CPU_PATHS)), default=None,
-              help="The CPU kernels: avx2 (rebuilds agree across x86-64 machines) or native (the widest, bit for bit only on the same CPU). Default: the recipe's cpu_path (avx2).")
+              help="Every train stage's CPU kernels: avx2 (rebuilds agree across x86-64 machines), avx512 (AVX-512's common level) or native (the widest, bit for bit only on the same CPU). Default: each stage's cpu_path, else the recipe's (avx2).")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
 def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, cpu_path: str | None, quiet: bool) -> None:
     """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
