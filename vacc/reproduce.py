@@ -230,6 +230,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     stamp_lineage(dst, lineage)
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
               "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe()}  # fmt: skip
+    if stage.kind == "train":
+        record["cpu_path"] = os.environ.get(PINNED, "native")  # the path asked (host.kernels: torch's own name for it)
     (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
     return record
 
@@ -279,8 +281,11 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
             raise KeyboardInterrupt
         if progress:
             click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
-        if stage.kind == "train" and _done_record(out, stage) is None:
-            path = cpu_path or stage.cpu_path or recipe.cpu_path  # --cpu-path, else the stage's, else the recipe's
+        path = cpu_path or stage.cpu_path or recipe.cpu_path  # --cpu-path, else the stage's, else the recipe's
+        record = _done_record(out, stage)
+        if stage.kind == "train" and record is not None and record.get("cpu_path", path) != path:  # said even when quiet
+            click.echo(f"vacc reproduce: stage {stage.name} was made on {record['cpu_path']} kernels, not {path}: kept (remove {out / stage.name} to make it again)", err=True)
+        if stage.kind == "train" and record is None:
             _pin_kernels(path, reexec, progress)
             kernels = describe(with_gpu=False)["kernels"]
             if progress and path != "native" and kernels != path.upper():

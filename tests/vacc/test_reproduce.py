@@ -80,6 +80,12 @@ def test_a_stage_on_other_kernels_goes_on_in_a_fresh_process(tmp_path):
     kernels = {name: json.loads((tmp_path / "run" / name / "done.json").read_text())["host"]["kernels"] for name in ("gap-scratch", "ev-gap", "ev-force", "mix")}
     pinned = "DEFAULT" if native == "DEFAULT" else "AVX2"
     assert kernels == {"gap-scratch": pinned, "ev-gap": pinned, "ev-force": native, "mix": pinned}, kernels
+    paths = {name: json.loads((tmp_path / "run" / name / "done.json").read_text())["cpu_path"] for name in ("gap-scratch", "ev-force", "mix")}
+    assert paths == {"gap-scratch": "avx2", "ev-force": "native", "mix": "avx2"}, paths
+    # the recipe now names other kernels for a finished stage: kept, and said so
+    recipe.write_text((RECIPES_DIR / "ev-force.toml").read_text())
+    out = _finish(_reproduce(str(recipe), tmp_path / "run"))
+    assert "stage ev-force was made on native kernels, not avx2: kept" in out and "stage gap-scratch was made" not in out, out[-2000:]
 
 
 def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None:
