@@ -14,7 +14,11 @@ their weights, written to ``DIR/identity.json`` and printed in one line (:func:`
 
 Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
 (N minus the recipe's seed): the recipe's own seed gives its written seeds, and every
-other N a distinct, equally written-out set.
+other N a distinct, equally written-out set. ``--reseed-from STAGE`` moves only the seeds of
+STAGE and the stages after it (a replicate of a chain's tail), and ``--reuse DIR`` copies the
+finished stages of another run that are the same stage: the same options, seed and parents
+(:func:`stage_key`, recorded in each ``done.json``). A ``done.json`` whose key differs from
+the stage's is refused, never run over.
 
 ``--smoke`` runs every stage for a few dozen steps (:func:`smoke_config`) and the gates
 in their quick mode: it checks that a recipe still runs, not what it makes.
@@ -76,6 +80,24 @@ def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
     return seed + SEED_STRIDE * (replicate - recipe.seed)
 
 
+def replicate_of(recipe: Recipe, stage: Stage, opts: dict[str, Any]) -> int:
+    """The replicate a stage runs as: ``--seed``'s, or the recipe's own seed for a stage
+    before ``--reseed-from``'s."""
+    start = opts.get("reseed_from")
+    if start is not None and recipe.stages.index(stage) < recipe.stages.index(recipe.stage(start)):
+        return recipe.seed
+    return int(opts["seed"])
+
+
+def stage_key(recipe: Recipe, stage: Stage, opts: dict[str, Any], parents: list[str]) -> str:
+    """What makes a stage's output: its kind and options, the replicate it runs as (a train
+    stage's), --smoke and its parents' weights (SHA-256), hashed. Not its name, note or
+    kernels, nor the recipe's other stages, so the same stage in another recipe has the same key."""
+    replicate = replicate_of(recipe, stage, opts) if stage.kind == "train" else None
+    return digest({"kind": stage.kind, "options": stage.options, "seed_shift": None if replicate is None else replicate - recipe.seed,
+                   "smoke": bool(opts["smoke"]), "parents": parents})  # fmt: skip
+
+
 def smoke_config(cfg: Config) -> Config:
     """``cfg`` cut to a few dozen steps (:data:`SMOKE`), evaluated on its first trajectory."""
     small = {k: (min(getattr(cfg, k), v) if getattr(cfg, k) is not None else v) for k, v in SMOKE.items()}
@@ -95,7 +117,7 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
     from agent_client.rl.cli import run_files  # the trainer's own list of its files
 
     cfg = stage_config(stage, inputs)
-    cfg = dataclasses.replace(cfg, seed=shifted_seed(cfg.seed, recipe, opts["seed"]))
+    cfg = dataclasses.replace(cfg, seed=shifted_seed(cfg.seed, recipe, replicate_of(recipe, stage, opts)))
     if opts["smoke"]:
         cfg = smoke_config(cfg)
     if opts["servers"] > 1 and single_stream_only(dataclasses.replace(cfg, servers=1)) is None:
@@ -158,14 +180,43 @@ def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:
         export_policy(inputs[stage_refs(stage)[0]], dst)
 
 
-def _done_record(out: Path, stage: Stage) -> dict[str, Any] | None:
-    """A finished stage's ``done.json``, where it matches the file it made; else None."""
+def _key(recipe: Recipe, stage: Stage, opts: dict[str, Any], done: dict[str, dict[str, Any]]) -> str:
+    """:func:`stage_key` of ``stage``, its parents' weights taken from their ``done`` records."""
+    return stage_key(recipe, stage, opts, [done[name]["weights_sha256"] for name in stage_refs(stage)])
+
+
+def _done_record(out: Path, stage: Stage, key: str) -> dict[str, Any] | None:
+    """A finished stage's ``done.json``, where it matches the file it made; else None.
+
+    Raises:
+        click.ClickException: it records another stage key (other options, seed or parents;
+            a record from before keys were written is taken as it is).
+    """
     record_file, dst = out / stage.name / "done.json", out / stage.name / f"{stage.name}.pt"
     if record_file.is_file() and dst.is_file():
         record = json.loads(record_file.read_text())
         if record.get("sha256") == file_sha256(dst):
+            if record.get("stage_key", key) != key:
+                raise click.ClickException(f"{out / stage.name} holds a stage made with other options, seed or parents than this run's {stage.name}: remove it or give a new --out")
             return dict(record)
     return None
+
+
+def _reuse(stage: Stage, key: str, out: Path, source: Path) -> dict[str, Any] | None:
+    """Copy ``source``'s finished ``stage`` into ``out`` where it has the same key; its record, else None."""
+    record_file, src = source / stage.name / "done.json", source / stage.name / f"{stage.name}.pt"
+    if not (record_file.is_file() and src.is_file()):
+        return None
+    record = json.loads(record_file.read_text())
+    if record.get("stage_key") != key or record.get("sha256") != file_sha256(src):
+        return None
+    sdir = out / stage.name
+    sdir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, sdir / src.name)
+    record["reused_from"] = str(source / stage.name)
+    (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
+    click.echo(f"vacc reproduce: stage {stage.name} reused from {source / stage.name} (the same options, seed and parents)", err=True)
+    return dict(record)
 
 
 def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool) -> None:
@@ -202,7 +253,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     """
     sdir = out / stage.name
     dst = sdir / f"{stage.name}.pt"
-    record = _done_record(out, stage)
+    key = _key(recipe, stage, opts, done)
+    record = _done_record(out, stage, key)
     if record is not None:
         return record
     sdir.mkdir(parents=True, exist_ok=True)
@@ -229,7 +281,7 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
     stamp_lineage(dst, lineage)
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
-              "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe()}  # fmt: skip
+              "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe(), "stage_key": key}  # fmt: skip
     if stage.kind == "train":
         record["cpu_path"] = os.environ.get(PINNED, "native")  # the path asked (host.kernels: torch's own name for it)
     (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
@@ -242,11 +294,13 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
     Raises:
         click.ClickException: ``out`` holds another recipe's or another seed's run.
     """
-    mine = {"recipe": recipe.name, "recipe_digest": recipe.digest, "seed": opts["seed"], "smoke": opts["smoke"], "cpu_path": opts["cpu_path"]}
+    mine = {"recipe": recipe.name, "recipe_digest": recipe.digest, "seed": opts["seed"], "smoke": opts["smoke"], "cpu_path": opts["cpu_path"],
+            "reseed_from": opts["reseed_from"]}  # fmt: skip
     marker = out / "reproduce.json"
     if marker.is_file():
         theirs = json.loads(marker.read_text())
         theirs.setdefault("cpu_path", "native")  # a run begun before the kernels were pinned
+        theirs.setdefault("reseed_from", None)
         differ = [k for k in mine if theirs.get(k) != mine[k]]
         if differ:
             raise click.ClickException(f"{out} holds a run with another {differ[0]} ({theirs.get(differ[0])!r}, here {mine[differ[0]]!r}): give a new --out")
@@ -257,23 +311,31 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
 
 def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: int = 1, use_ray: bool = False,
               smoke: bool = False, progress: bool = True, jobs: int = 2, cpu_path: str | None = None,
+              reseed_from: str | None = None, reuse: Path | None = None,
               reexec: Callable[[dict[str, str]], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Run every stage of ``recipe`` into ``out``, copy the last one's policy to
     ``out/<model>.pt`` and check it against the gates (``out/gates/gates.json``).
     Each train stage runs on ``cpu_path``'s kernels (:data:`vacc.host.CPU_PATHS`; None: the
     stage's own ``cpu_path``, else the recipe's); where they change, ``reexec`` starts this run
-    again in a fresh process with them (see :func:`_pin_kernels`).
+    again in a fresh process with them (see :func:`_pin_kernels`). ``reseed_from`` keeps the
+    recipe's own seeds before that stage; ``reuse`` is another run's folder whose finished
+    stages are copied where they are the same (:func:`stage_key`).
 
     Returns:
         The gate report (:func:`vacc.gates.evaluate_gates`).
 
     Raises:
-        click.ClickException: a stage failed, or ``out`` holds another run.
+        click.ClickException: a stage failed, ``reseed_from`` names no stage, ``reuse`` is no
+            folder, or ``out`` holds another run.
     """
     from vacc.gates import evaluate_gates
 
+    if reseed_from is not None and reseed_from not in [s.name for s in recipe.stages]:
+        raise click.ClickException(f"--reseed-from {reseed_from}: {recipe.name} has no such stage (it has {', '.join(s.name for s in recipe.stages)})")
+    if reuse is not None and not reuse.is_dir():
+        raise click.ClickException(f"--reuse {reuse}: no such folder")
     opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress,
-            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path}  # fmt: skip
+            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path, "reseed_from": reseed_from, "reuse": reuse}  # fmt: skip
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
@@ -282,7 +344,10 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
         if progress:
             click.echo(f"vacc reproduce {recipe.name}: stage {i}/{len(recipe.stages)} {stage.name} ({stage.kind})", err=True)
         path = cpu_path or stage.cpu_path or recipe.cpu_path  # --cpu-path, else the stage's, else the recipe's
-        record = _done_record(out, stage)
+        key = _key(recipe, stage, opts, done)
+        record = _done_record(out, stage, key)
+        if record is None and reuse is not None:
+            record = _reuse(stage, key, out, reuse)
         if stage.kind == "train" and record is not None and record.get("cpu_path", path) != path:  # said even when quiet
             click.echo(f"vacc reproduce: stage {stage.name} was made on {record['cpu_path']} kernels, not {path}: kept (remove {out / stage.name} to make it again)", err=True)
         if stage.kind == "train" and record is None:
@@ -290,8 +355,8 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
             kernels = describe(with_gpu=False)["kernels"]
             if progress and path != "native" and kernels != path.upper():
                 click.echo(f"vacc reproduce: this CPU runs {kernels}, not {path.upper()}: stage {stage.name} will not make the known weights bit for bit", err=True)
-        done[stage.name] = run_stage(recipe, stage, out, done, opts)
-        if progress and stage.known_weights and not _not_compared(recipe, opts):  # hours before the end's line
+        done[stage.name] = record if record is not None else run_stage(recipe, stage, out, done, opts)
+        if progress and stage.known_weights and _compared(recipe, stage, opts):  # hours before the end's line
             same = done[stage.name]["weights_sha256"] == stage.known_weights
             click.echo(f"vacc reproduce {recipe.name}: stage {stage.name}'s weights {'are identical to' if same else 'DIFFER from'} the known ones", err=True)
     last = recipe.stages[-1].name
@@ -313,21 +378,27 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
 
 def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts: dict[str, Any]) -> dict[str, Any]:
     """Whether a run made the known weights again: each stage with ``known_weights``, and the
-    model against the shipped ``<models>/<name>.pt`` (where there is one). Only at the recipe's
-    own seed and not --smoke; otherwise ``{"compared": False, "why": ...}``."""
-    why = _not_compared(recipe, opts)
-    if why:
-        return {"compared": False, "why": why, "checks": []}
+    model against the shipped ``<models>/<name>.pt`` (where there is one). Only the stages run
+    at the recipe's own seed (all but a replicate's, or a replicate's before its
+    ``--reseed-from``), and not with --smoke; where none is, ``{"compared": False, "why": ...}``."""
     from vacc.paths import models_dir
 
     checks = [{"what": f"stage {s.name}", "known": s.known_weights, "made": done[s.name]["weights_sha256"]}
-              for s in recipe.stages if s.known_weights]  # fmt: skip
+              for s in recipe.stages if s.known_weights and _compared(recipe, s, opts)]  # fmt: skip
     shipped = models_dir() / f"{recipe.name}.pt"
-    if shipped.is_file():
+    if shipped.is_file() and _compared(recipe, recipe.stages[-1], opts):
         checks.append({"what": f"{final.name} against {shipped}", "known": weights_sha256(shipped), "made": weights_sha256(final)})
+    why = _not_compared(recipe, opts)
+    if why and not checks:
+        return {"compared": False, "why": why, "checks": []}
     for c in checks:
         c["identical"] = c["known"] == c["made"]
     return {"compared": True, "why": "", "checks": checks}
+
+
+def _compared(recipe: Recipe, stage: Stage, opts: dict[str, Any]) -> bool:
+    """Whether ``stage``'s weights are compared with the known ones: not --smoke, and run at the recipe's own seed."""
+    return not opts["smoke"] and replicate_of(recipe, stage, opts) == recipe.seed
 
 
 def _not_compared(recipe: Recipe, opts: dict[str, Any]) -> str:
@@ -376,6 +447,8 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.argument("model_or_recipe")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder of the run: one subfolder per stage, the model, the gates.")
 @click.option("--seed", default=None, type=click.IntRange(min=0), help=f"Replicate N: every train stage's seed + {SEED_STRIDE:,} x (N - the recipe's seed). Default: the recipe's seed.")
+@click.option("--reseed-from", default=None, metavar="STAGE", help="With --seed: replicate only STAGE and the stages after it; those before keep the recipe's seeds (a chain's tail over seeds).")
+@click.option("--reuse", default=None, type=click.Path(file_okay=False), help="Another run's folder: copy each finished stage of it that is the same here (options, seed, parents) instead of running it.")
 @click.option("--servers", default=1, show_default=True, type=click.IntRange(min=1), help="Servers feeding each train stage that the K-stream trainer can run (others run one).")
 @click.option("--ray", "use_ray", is_flag=True, help="Run the train stages' servers and actors as Ray actors (vacc[ray]).")
 @click.option("--smoke", is_flag=True, help="Every stage for a few dozen steps, the gates in quick mode: checks the recipe runs.")
@@ -383,7 +456,8 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.option("--cpu-path", type=click.Choice(tuple(CPU_PATHS)), default=None,
               help="Every train stage's CPU kernels: avx2 (rebuilds agree across x86-64 machines), avx512 (AVX-512's common level) or native (the widest, bit for bit only on the same CPU). Default: each stage's cpu_path, else the recipe's (avx2).")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
-def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers: int, use_ray: bool, smoke: bool, jobs: int, cpu_path: str | None, quiet: bool) -> None:
+def reproduce_command(model_or_recipe: str, out: str, seed: int | None, reseed_from: str | None, reuse: str | None, servers: int, use_ray: bool,
+                      smoke: bool, jobs: int, cpu_path: str | None, quiet: bool) -> None:  # fmt: skip
     """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
     order into OUT/<stage>/, then OUT/<model>.pt, its gate report and its wall-clock
     (OUT/timing.json). Stopped at any point
@@ -399,10 +473,10 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, servers:
     with stop_handlers("vacc reproduce", "; the same command continues"):
         try:
             report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs,
-                               cpu_path=cpu_path, reexec=_reexec_command)  # fmt: skip
+                               cpu_path=cpu_path, reseed_from=reseed_from, reuse=None if reuse is None else Path(reuse),
+                               reexec=_reexec_command)  # fmt: skip
         except KeyboardInterrupt:
-            again = (" --smoke" if smoke else "") + (f" --cpu-path {cpu_path}" if cpu_path else "")
-            click.echo(f"stopped; continue with the same command: vacc reproduce {model_or_recipe} --out {out}{again}", err=True)
+            click.echo(f"stopped; continue with the same command: vacc reproduce {' '.join(sys.argv[2:])}", err=True)
             raise SystemExit(stop_exit_code()) from None
     click.echo(gate_table(report))
     click.echo(timing_line(report["timing"]))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -45,6 +46,28 @@ def test_seed_shift_rule():
 
     r = load_recipe("ev-force")
     assert shifted_seed(72, r, r.seed) == 72 and shifted_seed(72, r, r.seed + 2) == 72 + 2 * SEED_STRIDE
+
+
+def test_a_tail_replicate_keeps_the_recipe_seeds_before_its_first_stage(tmp_path):
+    import click
+
+    from vacc.recipes import load_recipe
+    from vacc.reproduce import replicate_of, reproduce, stage_key
+
+    r = load_recipe("ev-force")
+    plain = {"seed": r.seed, "smoke": False, "reseed_from": None}
+    tail = {"seed": r.seed + 1, "smoke": False, "reseed_from": "ev-force"}
+    assert [replicate_of(r, s, tail) for s in r.stages] == [r.seed, r.seed, r.seed + 1, r.seed + 1]
+    first, last = r.stage("gap-scratch"), r.stage("mix")
+    assert stage_key(r, first, plain, []) == stage_key(r, first, tail, [])  # the same stage: reusable
+    assert stage_key(r, last, plain, ["a" * 64]) != stage_key(r, last, tail, ["a" * 64])  # another seed
+    assert stage_key(r, last, plain, ["a" * 64]) != stage_key(r, last, plain, ["b" * 64])  # other parents
+    assert stage_key(r, first, plain, []) != stage_key(r, first, {**plain, "smoke": True}, [])
+    with pytest.raises(click.ClickException, match="--reseed-from nope: ev-force has no such stage .it has gap-scratch, ev-gap, ev-force, mix."):
+        reproduce(r, tmp_path / "x", seed=1, reseed_from="nope")
+    with pytest.raises(click.ClickException, match="--reuse .*missing: no such folder"):
+        reproduce(r, tmp_path / "x", reuse=tmp_path / "missing")
+    assert not (tmp_path / "x").exists()
 
 
 def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, capsys):
@@ -147,3 +170,31 @@ def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
     assert a["model"].keys() == b["model"].keys()
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
     assert a["lineage"] == b["lineage"]
+
+
+@pytest.mark.slow
+def test_a_tail_replicate_reuses_the_stages_before_it_and_a_stage_made_otherwise_is_refused(tmp_path):
+    """--seed 1 --reseed-from ev-force --reuse A: ev-force's first two stages are copied from
+    the seed-0 run A (the same options, seed and parents), its last two run at replicate 1's
+    seeds. A folder holding a stage made at another seed is refused, not run over."""
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    proc = _reproduce(SHARED, a)
+    out = _finish(proc)
+    assert proc.returncode == 0, out[-2000:]
+    proc = _reproduce(SHARED, b, "--seed", "1", "--reseed-from", "ev-force", "--reuse", str(a))
+    out = _finish(proc)
+    assert proc.returncode == 0, out[-2000:]
+    done = {run: {n: json.loads((run / n / "done.json").read_text()) for n in ("gap-scratch", "ev-gap", "ev-force", "mix")} for run in (a, b)}
+    for name in ("gap-scratch", "ev-gap"):
+        assert f"stage {name} reused from {a / name}" in out
+        assert done[b][name]["weights_sha256"] == done[a][name]["weights_sha256"] and not (b / name / "run").exists()
+    for name in ("ev-force", "mix"):
+        assert f"stage {name} reused" not in out and done[b][name]["weights_sha256"] != done[a][name]["weights_sha256"]
+        assert json.loads((b / name / "run" / "config.json").read_text())["seed"] == json.loads((a / name / "run" / "config.json").read_text())["seed"] + SEED_STRIDE
+    for name in ("gap-scratch", "ev-gap", "ev-force"):
+        shutil.copytree(a / name, c / name)
+    before = (c / "ev-force" / "ev-force.pt").read_bytes()
+    proc = _reproduce(SHARED, c, "--seed", "1", "--reseed-from", "ev-force")
+    out = _finish(proc)
+    assert proc.returncode == 1 and f"{c / 'ev-force'} holds a stage made with other options, seed or parents than this run's ev-force" in out, out[-2000:]
+    assert (c / "ev-force" / "ev-force.pt").read_bytes() == before and not (c / "mix").exists()
