@@ -207,8 +207,13 @@ def test_idle_client_keeps_its_session_alive():
 
 def test_spawned_server_exits_when_its_client_is_killed(tmp_path):
     # A client process spawns a server, then dies by SIGKILL (no clean-up runs).
+    # As a terminal job: Ctrl-C at its default and unblocked, whatever this worker's state is
+    # (a child inherits an ignored or blocked SIGINT across exec); what it inherited goes to stderr.
     script = (
-        "import time\n"
+        "import signal, sys, time\n"
+        "print('inherited', signal.getsignal(signal.SIGINT), sorted(signal.pthread_sigmask(signal.SIG_BLOCK, [])), file=sys.stderr, flush=True)\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})\n"
         "from agent_client.launcher import local_server\n"
         "with local_server() as addr:\n"
         "    print(addr[1], flush=True)\n"
@@ -234,8 +239,13 @@ def test_spawned_server_exits_when_its_client_is_killed(tmp_path):
 def test_spawned_server_outlives_a_ctrl_c_to_its_clients_process_group():
     # A terminal's Ctrl-C goes to every process of the foreground job. The client decides
     # when its server goes (after it has saved its work): the server must not get it.
+    # As a terminal job: Ctrl-C at its default and unblocked, whatever this worker's state is
+    # (a child inherits an ignored or blocked SIGINT across exec); what it inherited goes to stderr.
     script = (
-        "import time\n"
+        "import signal, sys, time\n"
+        "print('inherited', signal.getsignal(signal.SIGINT), sorted(signal.pthread_sigmask(signal.SIG_BLOCK, [])), file=sys.stderr, flush=True)\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})\n"
         "from agent_client.launcher import local_server\n"
         "from agent_client.session import Session\n"
         "with local_server() as addr, Session(addr, give_up=3) as s:\n"
@@ -250,7 +260,12 @@ def test_spawned_server_outlives_a_ctrl_c_to_its_clients_process_group():
     with job([sys.executable, "-c", script], own_group=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as client:
         assert client.stdout.readline() == "ready\n"
         os.killpg(client.pid, signal.SIGINT)
-        out, err = client.communicate(timeout=60)
+        try:
+            out, err = client.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(client.pid, signal.SIGKILL)
+            out, err = client.communicate()
+            pytest.fail(f"the client did not finish within 60 s of its Ctrl-C; stdout {out!r}, stderr {err!r}")
     assert client.returncode == 0 and out == "frame 1\n", err
 
 
