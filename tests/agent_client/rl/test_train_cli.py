@@ -11,7 +11,7 @@ from agent_client.rl.config import Config
 from vacc.cli import main
 
 HELP_LIMIT = 10_000  # [characters] the whole of `vacc train --help`
-OPTION_HELP_LIMIT = 300  # [characters] one option's help; the evidence lives in docs/training.md
+OPTION_HELP_LIMIT = 300  # [characters] one option's help; the evidence lives in docs/training.md and docs/options.md
 
 
 def test_the_train_help_is_short_and_every_option_says_what_it_does_briefly():
