@@ -83,7 +83,7 @@ def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
 def replicate_of(recipe: Recipe, stage: Stage, opts: dict[str, Any]) -> int:
     """The replicate a stage runs as: ``--seed``'s, or the recipe's own seed for a stage
     before ``--reseed-from``'s."""
-    start = opts.get("reseed_from")
+    start = opts.get("reseed_from")  # absent: no --reseed-from (identity's callers pass the seed and --smoke only)
     if start is not None and recipe.stages.index(stage) < recipe.stages.index(recipe.stage(start)):
         return recipe.seed
     return int(opts["seed"])
@@ -245,18 +245,15 @@ def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, pro
     reexec({**env, **CPU_PATHS[path], PINNED: path})
 
 
-def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any]) -> dict[str, Any]:
-    """Run one stage (or skip it when its ``done.json`` matches its file); returns its record.
+def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any], key: str) -> dict[str, Any]:
+    """Run one stage whose ``done.json`` is not there (:func:`_done_record`), its
+    :func:`stage_key` ``key``; returns its record.
 
     Raises:
         click.ClickException: the stage failed.
     """
     sdir = out / stage.name
     dst = sdir / f"{stage.name}.pt"
-    key = _key(recipe, stage, opts, done)
-    record = _done_record(out, stage, key)
-    if record is not None:
-        return record
     sdir.mkdir(parents=True, exist_ok=True)
     dst.unlink(missing_ok=True)  # a stage stopped after its write and before done.json: made again, the same
     inputs = {name: str(out / name / f"{name}.pt") for name in stage_refs(stage)}
@@ -355,7 +352,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
             kernels = describe(with_gpu=False)["kernels"]
             if progress and path != "native" and kernels != path.upper():
                 click.echo(f"vacc reproduce: this CPU runs {kernels}, not {path.upper()}: stage {stage.name} will not make the known weights bit for bit", err=True)
-        done[stage.name] = record if record is not None else run_stage(recipe, stage, out, done, opts)
+        done[stage.name] = record if record is not None else run_stage(recipe, stage, out, done, opts, key)
         if progress and stage.known_weights and _compared(recipe, stage, opts):  # hours before the end's line
             same = done[stage.name]["weights_sha256"] == stage.known_weights
             click.echo(f"vacc reproduce {recipe.name}: stage {stage.name}'s weights {'are identical to' if same else 'DIFFER from'} the known ones", err=True)
