@@ -17,8 +17,8 @@ Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
 other N a distinct, equally written-out set. ``--reseed-from STAGE`` moves only the seeds of
 STAGE and the stages after it (a replicate of a chain's tail), and ``--reuse DIR`` copies the
 finished stages of another run that are the same stage: the same options, seed and parents
-(:func:`stage_key`, recorded in each ``done.json``). A ``done.json`` whose key differs from
-the stage's is refused, never run over.
+(:func:`stage_key`, recorded in each ``done.json``; a record older than keys, where it made the
+stage's ``known_weights``). A ``done.json`` whose key differs from the stage's is refused, never run over.
 
 ``--smoke`` runs every stage for a few dozen steps (:func:`smoke_config`) and the gates
 in their quick mode: it checks that a recipe still runs, not what it makes.
@@ -202,20 +202,28 @@ def _done_record(out: Path, stage: Stage, key: str) -> dict[str, Any] | None:
     return None
 
 
-def _reuse(stage: Stage, key: str, out: Path, source: Path) -> dict[str, Any] | None:
-    """Copy ``source``'s finished ``stage`` into ``out`` where it has the same key; its record, else None."""
+def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict[str, Any] | None:
+    """Copy ``source``'s finished ``stage`` into ``out`` where it has the same key; its record, else None.
+
+    A record from before keys were written is the same stage where this one is compared with
+    its ``known_weights`` (``known``) and the record made exactly those weights."""
     record_file, src = source / stage.name / "done.json", source / stage.name / f"{stage.name}.pt"
     if not (record_file.is_file() and src.is_file()):
         return None
     record = json.loads(record_file.read_text())
-    if record.get("stage_key") != key or record.get("sha256") != file_sha256(src):
+    if record.get("sha256") != file_sha256(src):
         return None
+    made_known = known and "stage_key" not in record and record.get("weights_sha256") == stage.known_weights
+    if record.get("stage_key") != key and not made_known:
+        return None
+    record["stage_key"] = key
     sdir = out / stage.name
     sdir.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(src, sdir / src.name)
     record["reused_from"] = str(source / stage.name)
     (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
-    click.echo(f"vacc reproduce: stage {stage.name} reused from {source / stage.name} (the same options, seed and parents)", err=True)
+    why = "it made this stage's known weights" if made_known else "the same options, seed and parents"
+    click.echo(f"vacc reproduce: stage {stage.name} reused from {source / stage.name} ({why})", err=True)
     return dict(record)
 
 
@@ -344,7 +352,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
         key = _key(recipe, stage, opts, done)
         record = _done_record(out, stage, key)
         if record is None and reuse is not None:
-            record = _reuse(stage, key, out, reuse)
+            record = _reuse(stage, key, out, reuse, bool(stage.known_weights) and _compared(recipe, stage, opts))
         if stage.kind == "train" and record is not None and record.get("cpu_path", path) != path:  # said even when quiet
             click.echo(f"vacc reproduce: stage {stage.name} was made on {record['cpu_path']} kernels, not {path}: kept (remove {out / stage.name} to make it again)", err=True)
         if stage.kind == "train" and record is None:

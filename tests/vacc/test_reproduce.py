@@ -70,6 +70,30 @@ def test_a_tail_replicate_keeps_the_recipe_seeds_before_its_first_stage(tmp_path
     assert not (tmp_path / "x").exists()
 
 
+def test_a_record_older_than_stage_keys_is_reused_only_where_it_made_the_known_weights(tmp_path, capsys):
+    """ice-gap's rebuilt first stage predates stage keys; ice-eco's first stage is the same
+    stage, and its known weights say so: reusable at the recipe's seed, never otherwise."""
+    from vacc.recipes import load_recipe
+    from vacc.reproduce import _reuse, file_sha256
+
+    stage = load_recipe("ice-eco").stage("scratch")
+    src = tmp_path / "src" / "scratch"
+    src.mkdir(parents=True)
+    (src / "scratch.pt").write_bytes(b"weights")
+    record = {"sha256": file_sha256(src / "scratch.pt"), "weights_sha256": stage.known_weights}
+    (src / "done.json").write_text(json.dumps(record))
+    assert _reuse(stage, "k" * 64, tmp_path / "a", tmp_path / "src", known=False) is None  # a replicate or --smoke
+    got = _reuse(stage, "k" * 64, tmp_path / "b", tmp_path / "src", known=True)
+    assert got is not None and got["stage_key"] == "k" * 64 and (tmp_path / "b" / "scratch" / "scratch.pt").read_bytes() == b"weights"
+    assert json.loads((tmp_path / "b" / "scratch" / "done.json").read_text())["stage_key"] == "k" * 64
+    assert "it made this stage's known weights" in capsys.readouterr().err
+    (src / "done.json").write_text(json.dumps({**record, "weights_sha256": "0" * 64}))  # other weights
+    assert _reuse(stage, "k" * 64, tmp_path / "c", tmp_path / "src", known=True) is None
+    (src / "done.json").write_text(json.dumps({**record, "stage_key": "j" * 64}))  # a keyed record of another stage
+    assert _reuse(stage, "k" * 64, tmp_path / "d", tmp_path / "src", known=True) is None
+    assert not any((tmp_path / d).exists() for d in "acd")
+
+
 def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, capsys):
     import click
 
