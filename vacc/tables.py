@@ -29,7 +29,7 @@ from vacc import stats
 from vacc.runs import TRAJECTORIES, Run, score_runs, seed_text
 
 __all__ = [
-    "Row", "ICE_ROWS", "EV_ROWS", "DRIVING_ROWS", "COMFORT_ROWS", "PAPER", "Table", "compute_table",
+    "Row", "ICE_ROWS", "EV_ROWS", "RELATIVE_ROWS", "DRIVING_ROWS", "COMFORT_ROWS", "PAPER", "Table", "compute_table",
     "write_table_md", "write_table_csv", "write_stats_csv", "build_tables", "early_lines",
 ]  # fmt: skip
 
@@ -49,6 +49,13 @@ class Row(NamedTuple):
     """Blank for the lead: its log has a 55 m placeholder gap."""
     better: str = "lower"
     """Which way is better, as the tables say it: lower, higher, or a bound."""
+    relative_to: str | None = None
+    """A method: each run's value over that method's on the same trajectory and seed (paired)."""
+
+    @property
+    def name(self) -> str:
+        """The row's key in :func:`build_tables`' result: the metric's, or ``<metric>_vs_<method>``."""
+        return self.key if self.relative_to is None else f"{self.key}_vs_{self.relative_to}"
 
 
 ICE_ROWS = [
@@ -59,6 +66,11 @@ ICE_ROWS = [
     Row("NOx", "nox_g_per_mi", "g/mi", 4),
 ]
 EV_ROWS = [Row("Energy", "energy_kj_per_mi", "kJ/mi", 1)]
+# Paired: the seed's traffic and scenery are the same for both, so the ratio's interval is narrower than the two means'.
+RELATIVE_ROWS = {
+    "ice": Row("Fuel against the ACC, per run", "fuel_g_per_mi", "×", 3, relative_to="acc"),
+    "ev": Row("Energy against the ACC, per run", "energy_kj_per_mi", "×", 3, relative_to="acc"),
+}
 DRIVING_ROWS = [
     Row("Gap RMSE to 55 m", "gap_rmse_55m_m", "m", 3, follower_only=True),
     Row("Collisions", "collisions", "", 0, "sum", follower_only=True),
@@ -129,8 +141,8 @@ class Table:
     rows: list[Row]
     trajectories: list[str]
     """The trajectories every method drove."""
-    per: dict[str, dict[str, list[Metrics]]]
-    """Method -> trajectory -> the metrics of its runs (one per seed)."""
+    per: dict[str, dict[str, dict[int | None, Metrics]]]
+    """Method -> trajectory -> seed -> the metrics of its run (seed None: a single-seed evaluation's)."""
     seeds: Sequence[int] | None
     settle: float
     """Seconds at the start of each run left out of the comfort rows [s]."""
@@ -150,14 +162,22 @@ class Table:
         return [self.labels[m] for m in self.methods]
 
     def _samples(self, method: str, traj: str | None, row: Row) -> list[list[float]]:
-        """The row's values, one list (over seeds) per trajectory; None (undefined on a run) left out."""
-        per = self.per[method]
-        groups = [[float(r[row.key]) for r in per.get(t, []) if r[row.key] is not None] for t in ([traj] if traj else self.trajectories)]  # type: ignore[arg-type]
+        """The row's values, one list (over seeds) per trajectory; None (undefined on a run) left out.
+        A relative row pairs each run with the reference method's of the same seed, where both have one."""
+        groups = []
+        for t in [traj] if traj else self.trajectories:
+            runs = self.per[method].get(t, {})
+            if row.relative_to is None:
+                groups.append([float(r[row.key]) for r in runs.values() if r[row.key] is not None])  # type: ignore[arg-type]
+                continue
+            ref = self.per[row.relative_to].get(t, {})
+            pairs = [(r[row.key], ref[seed][row.key]) for seed, r in runs.items() if seed in ref]
+            groups.append([float(a) / float(b) for a, b in pairs if a is not None and b])  # type: ignore[arg-type]
         return [g for g in groups if g]
 
     def estimate(self, method: str, traj: str | None, row: Row, statistic: stats.Statistic = stats.mean) -> stats.Estimate | None:
         """The row's value for one method (with its interval over several seeds), or None: blank."""
-        if method == "lead" and row.follower_only:
+        if (method == "lead" and row.follower_only) or method == row.relative_to:
             return None
         groups = self._samples(method, traj, row)
         if not groups:
@@ -195,13 +215,15 @@ def compute_table(
     A run that ended before its duration (a collision, a lost lead) is left out of every
     value unless ``include_early``; the table lists it either way.
     """
-    rows = (ICE_ROWS if scenario == "ice" else EV_ROWS) + DRIVING_ROWS + COMFORT_ROWS
-    per: dict[str, dict[str, list[Metrics]]] = {m: {} for m in methods}
+    energy = ICE_ROWS if scenario == "ice" else EV_ROWS
+    relative = [RELATIVE_ROWS[scenario]] if "acc" in methods and len(methods) > 1 else []
+    rows = energy + relative + DRIVING_ROWS + COMFORT_ROWS
+    per: dict[str, dict[str, dict[int | None, Metrics]]] = {m: {} for m in methods}
     driven: dict[str, set[str]] = {m: set() for m in methods}
     for run in runs:
         driven[run.method].add(run.trajectory)
         if run.early is None or include_early:
-            per[run.method].setdefault(run.trajectory, []).append(run.metrics)
+            per[run.method].setdefault(run.trajectory, {})[run.seed] = run.metrics
     trajs = [t for t in TRAJECTORIES if all(t in driven[m] for m in methods)]
     early = tuple(r for r in runs if r.early is not None)
     return Table(scenario, methods, labels, vehicle, rows, trajs, per, seeds, settle, road, early, include_early)
@@ -242,6 +264,10 @@ def _md_notes(table: Table) -> list[str]:
         f"≤ {ISO_DECEL_LIMIT_MPS2:g} m/s², mean jerk over any 1 s ≤ {ISO_JERK_LIMIT_MPS3:g} m/s³.",
         "",
     ]
+    for row in table.rows:
+        if row.relative_to is not None:
+            lines[-1:-1] = [f"{row.label}: each run's {row.key.split('_')[0]} over the {table.labels[row.relative_to]}'s "
+                            "on the same trajectory and seed, averaged (paired, so the seed's traffic and scenery cancel)."]
     if table.multi:
         lines[-1:-1] = [
             f"[low, high]: {stats.CONFIDENCE:.0%} stratified bootstrap confidence interval of the mean "
@@ -348,4 +374,4 @@ def build_tables(
     write_table_csv(out, table)
     if table.multi:
         write_stats_csv(out, table)
-    return {m: {row.key: table.value(m, None, row) for row in table.rows} for m in methods}
+    return {m: {row.name: table.value(m, None, row) for row in table.rows} for m in methods}

@@ -169,7 +169,10 @@ def test_comfort_and_safety_rows_combine_per_their_rule(tmp_path):
     assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "2"  # summed: test-3 and test-4
     assert rows[("test-3", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["ACC"] == "1"
     assert rows[("mean", "Unprompted hard brakes (past 3.5 m/s^2, no threat ahead)")]["Lead"] == "—"
+    assert res["lead"]["fuel_g_per_mi_vs_acc"] == pytest.approx(res["lead"]["fuel_g_per_mi"] / acc["fuel_g_per_mi"], rel=0.5)
+    assert res["acc"]["fuel_g_per_mi_vs_acc"] is None
     whole = build_tables(tmp_path, "ice", ["acc"], {"acc": "ACC"}, "corolla", settle=0.0)["acc"]
+    assert "fuel_g_per_mi_vs_acc" not in whole  # no other method: no row
     # the same jerk, spread over 300 intervals instead of the last 150
     assert whole["jerk_rms_mps3"] == pytest.approx(acc["jerk_rms_mps3"] * np.sqrt(150 / 300))
     assert whole["gap_min_m"] == acc["gap_min_m"] and "first 0 s" in (tmp_path / "table.md").read_text()
@@ -205,6 +208,13 @@ def test_seeds_give_intervals_and_the_iqm(tmp_path):
     assert float(stats[("mean", "Fuel", "Traditional ACC", "iqm")]["value"]) == pytest.approx(float(iqm(np.array(list(fuel.values())))), rel=1e-5)
     assert float(stats[("test-2", "Fuel", "Traditional ACC", "mean")]["value"]) == pytest.approx((fuel["test-2", 0] + fuel["test-2", 1]) / 2, rel=1e-5)
     assert stats[("mean", "Min gap", "Traditional ACC", "min")]["runs"] == "8"
+    # paired: each lead run's fuel over the ACC's of the same trajectory and seed
+    lead = {k: float(evaluate_run(out / "logs" / f"lead-{k[0]}-seed{k[1]}.csv", "corolla")["fuel_g_per_mi"]) for k in fuel}  # type: ignore[arg-type]
+    ratio = stats[("mean", "Fuel against the ACC, per run", "Lead vehicle", "mean")]
+    paired = [lead[k] / fuel[k] for k in fuel if fuel[k]]  # a ratio to no fuel (2 s of coasting) is undefined: left out
+    assert float(ratio["value"]) == pytest.approx(np.mean(paired), rel=1e-5) and ratio["runs"] == str(len(paired))
+    assert not any(k[1] == "Fuel against the ACC, per run" and k[2] == "Traditional ACC" for k in stats)  # not against itself
+    assert "| Fuel against the ACC, per run (×) | lower | " in md and "on the same trajectory and seed" in md
     for name in ("fig_gap", "fig_speed", "fig_comfort", "fig_emissions", "fig_headway", "fig_pareto", "fig_training"):
         for ext in ("png", "pdf"):
             assert (out / f"{name}.{ext}").stat().st_size > 1000, (name, ext)
