@@ -371,7 +371,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
         raise KeyboardInterrupt
     t0 = time.perf_counter()
     report = evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
-    stages = {name: {"kind": r["kind"], "wall_s": r.get("wall_s"), "host": r.get("host")} for name, r in done.items()}
+    stages = {name: {"kind": r["kind"], "wall_s": r.get("wall_s"), "host": r.get("host"), "reused": "reused_from" in r} for name, r in done.items()}
     timing = {"stages": stages, "gates_s": round(time.perf_counter() - t0, 1), "gates_host": describe(), "smoke": smoke}
     timing["total_s"] = None if any(v["wall_s"] is None for v in stages.values()) else round(sum(v["wall_s"] for v in stages.values()) + timing["gates_s"], 1)
     (out / "timing.json").write_text(json.dumps(timing, indent=1) + "\n")
@@ -434,8 +434,9 @@ def duration(seconds: float) -> str:
 
 
 def timing_line(timing: dict[str, Any]) -> str:
-    """The wall-clock of a run in one line: each stage, the gates, the total, and the machines."""
-    parts = [f"{name} {'?' if v['wall_s'] is None else duration(v['wall_s'])}" for name, v in timing["stages"].items()]
+    """The wall-clock of a run in one line: each stage (one copied by --reuse: its first run's), the gates,
+    the total, and the machines."""
+    parts = [f"{name} {'?' if v['wall_s'] is None else duration(v['wall_s'])}{' (reused)' if v.get('reused') else ''}" for name, v in timing["stages"].items()]
     hosts = {label(v["host"]) for v in timing["stages"].values() if v["host"]} | {label(timing["gates_host"])}
     total = "?" if timing["total_s"] is None else duration(timing["total_s"])
     return f"wall-clock: {', '.join(parts)}, gates {duration(timing['gates_s'])}; total {total} on {' / '.join(sorted(hosts))}"

@@ -210,7 +210,7 @@ def test_a_tail_replicate_reuses_the_stages_before_it_and_a_stage_made_otherwise
     assert proc.returncode == 0, out[-2000:]
     done = {run: {n: json.loads((run / n / "done.json").read_text()) for n in ("gap-scratch", "ev-gap", "ev-force", "mix")} for run in (a, b)}
     for name in ("gap-scratch", "ev-gap"):
-        assert f"stage {name} reused from {a / name}" in out
+        assert f"stage {name} reused from {a / name}" in out and f"{name} {duration(json.loads((a / 'timing.json').read_text())['stages'][name]['wall_s'])} (reused)" in out
         assert done[b][name]["weights_sha256"] == done[a][name]["weights_sha256"] and not (b / name / "run").exists()
     for name in ("ev-force", "mix"):
         assert f"stage {name} reused" not in out and done[b][name]["weights_sha256"] != done[a][name]["weights_sha256"]
