@@ -268,7 +268,7 @@ def _md_notes(table: Table) -> list[str]:
         if row.relative_to is not None:
             lines[-1:-1] = [f"{row.label}: each run's {row.key.split('_')[0]} over the {table.labels[row.relative_to]}'s "
                             "on the same trajectory and seed, averaged (paired, so the seed's traffic and scenery cancel); "
-                            "a run whose reference ended early or used none has no ratio (stats.csv counts the runs)."]
+                            "a run whose reference has no run of its seed, or used none, has no ratio (stats.csv counts the runs)."]
     if table.multi:
         lines[-1:-1] = [
             f"[low, high]: {stats.CONFIDENCE:.0%} stratified bootstrap confidence interval of the mean "
