@@ -203,28 +203,35 @@ def _done_record(out: Path, stage: Stage, key: str) -> dict[str, Any] | None:
 
 
 def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict[str, Any] | None:
-    """Copy ``source``'s finished ``stage`` into ``out`` where it has the same key; its record, else None.
+    """Copy ``source``'s finished stage that is ``stage`` into ``out``; its record, else None.
 
-    A record from before keys were written is the same stage where this one is compared with
-    its ``known_weights`` (``known``) and the record made exactly those weights."""
-    record_file, src = source / stage.name / "done.json", source / stage.name / f"{stage.name}.pt"
-    if not (record_file.is_file() and src.is_file()):
-        return None
-    record = json.loads(record_file.read_text())
-    if record.get("sha256") != file_sha256(src):
-        return None
-    made_known = known and "stage_key" not in record and record.get("weights_sha256") == stage.known_weights
-    if record.get("stage_key") != key and not made_known:
-        return None
-    record["stage_key"] = key
-    sdir = out / stage.name
-    sdir.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(src, sdir / src.name)
-    record["reused_from"] = str(source / stage.name)
-    (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
-    why = "it made this stage's known weights" if made_known else "the same options, seed and parents"
-    click.echo(f"vacc reproduce: stage {stage.name} reused from {source / stage.name} ({why})", err=True)
-    return dict(record)
+    The stage of the same name is looked at first, then every other (keys leave names out, so
+    a stage another recipe names otherwise is found). A record from before keys were written
+    is the same stage where this one is compared with its ``known_weights`` (``known``) and the
+    record made exactly those weights."""
+    same_name = source / stage.name
+    for sdir_src in [same_name, *sorted(d for d in source.iterdir() if d.is_dir() and d != same_name)]:
+        record_file = sdir_src / "done.json"
+        if not record_file.is_file():
+            continue
+        record = json.loads(record_file.read_text())
+        src = sdir_src / str(record.get("output", f"{sdir_src.name}.pt"))
+        if not src.is_file() or record.get("sha256") != file_sha256(src):
+            continue
+        made_known = known and "stage_key" not in record and record.get("weights_sha256") == stage.known_weights
+        if record.get("stage_key") != key and not made_known:
+            continue
+        record["stage_key"] = key
+        sdir = out / stage.name
+        sdir.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, sdir / f"{stage.name}.pt")
+        record["output"] = f"{stage.name}.pt"
+        record["reused_from"] = str(sdir_src)
+        (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
+        why = "it made this stage's known weights" if made_known else "the same options, seed and parents"
+        click.echo(f"vacc reproduce: stage {stage.name} reused from {sdir_src} ({why})", err=True)
+        return dict(record)
+    return None
 
 
 def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool) -> None:
