@@ -297,6 +297,9 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     if stage.kind == "train":
         record["cpu_path"] = os.environ.get(PINNED, "native")  # the path asked (host.kernels: torch's own name for it)
     (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
+    if stage.kind == "train" and not opts.get("keep_replay"):  # only a resume reads it: GBs a stage
+        for buffer in (sdir / "run").glob("replay*.npz"):
+            buffer.unlink()
     return record
 
 
@@ -323,7 +326,7 @@ def _check_folder(recipe: Recipe, out: Path, opts: dict[str, Any]) -> None:
 
 def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: int = 1, use_ray: bool = False,
               smoke: bool = False, progress: bool = True, jobs: int = 2, cpu_path: str | None = None,
-              reseed_from: str | None = None, reuse: Path | None = None,
+              reseed_from: str | None = None, reuse: Path | None = None, keep_replay: bool = False,
               reexec: Callable[[dict[str, str]], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Run every stage of ``recipe`` into ``out``, copy the last one's policy to
     ``out/<model>.pt`` and check it against the gates (``out/gates/gates.json``).
@@ -331,7 +334,8 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     stage's own ``cpu_path``, else the recipe's); where they change, ``reexec`` starts this run
     again in a fresh process with them (see :func:`_pin_kernels`). ``reseed_from`` keeps the
     recipe's own seeds before that stage; ``reuse`` is another run's folder whose finished
-    stages are copied where they are the same (:func:`stage_key`).
+    stages are copied where they are the same (:func:`stage_key`). A finished train stage's
+    replay buffer is removed unless ``keep_replay``.
 
     Returns:
         The gate report (:func:`vacc.gates.evaluate_gates`).
@@ -347,7 +351,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     if reuse is not None and not reuse.is_dir():
         raise click.ClickException(f"--reuse {reuse}: no such folder")
     opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress,
-            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path, "reseed_from": reseed_from, "reuse": reuse}  # fmt: skip
+            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path, "reseed_from": reseed_from, "reuse": reuse, "keep_replay": keep_replay}  # fmt: skip
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
@@ -468,9 +472,10 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
 @click.option("--cpu-path", type=click.Choice(tuple(CPU_PATHS)), default=None,
               help="Every train stage's CPU kernels: avx2 (rebuilds agree across x86-64 machines), avx512 (AVX-512's common level) or native (the widest, bit for bit only on the same CPU). Default: each stage's cpu_path, else the recipe's (avx2).")
+@click.option("--keep-replay", is_flag=True, help="Keep each finished train stage's replay buffer (only a resume reads it; GBs a stage).")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
 def reproduce_command(model_or_recipe: str, out: str, seed: int | None, reseed_from: str | None, reuse: str | None, servers: int, use_ray: bool,
-                      smoke: bool, jobs: int, cpu_path: str | None, quiet: bool) -> None:  # fmt: skip
+                      smoke: bool, jobs: int, cpu_path: str | None, keep_replay: bool, quiet: bool) -> None:  # fmt: skip
     """Rebuild a model from its recipe (a model name, or recipes/NAME.toml): every stage in
     order into OUT/<stage>/, then OUT/<model>.pt, its gate report and its wall-clock
     (OUT/timing.json). Stopped at any point
@@ -487,7 +492,7 @@ def reproduce_command(model_or_recipe: str, out: str, seed: int | None, reseed_f
         try:
             report = reproduce(recipe, Path(out), seed=seed, servers=servers, use_ray=use_ray, smoke=smoke, progress=not quiet, jobs=jobs,
                                cpu_path=cpu_path, reseed_from=reseed_from, reuse=None if reuse is None else Path(reuse),
-                               reexec=_reexec_command)  # fmt: skip
+                               keep_replay=keep_replay, reexec=_reexec_command)  # fmt: skip
         except KeyboardInterrupt:
             click.echo(f"stopped; continue with the same command: vacc reproduce {' '.join(sys.argv[2:])}", err=True)
             raise SystemExit(stop_exit_code()) from None

@@ -176,6 +176,7 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
         if done["kind"] == "train":  # its time is its run's, from the scalars (the smoke run: one session)
             logged = max(float(r["wall_s"]) for r in csv.DictReader(open(stage_dir / "run" / "scalars.csv")))
             assert done["wall_s"] == pytest.approx(logged, abs=0.05) and logged > 0
+            assert not list((stage_dir / "run").glob("replay*.npz"))  # only a resume reads it
     # the wall-clock per stage and in all, recorded and printed
     timing = json.loads((folder / "timing.json").read_text())
     assert any(v["kind"] == "train" for v in timing["stages"].values())
@@ -208,6 +209,7 @@ def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     assert not (killed / "ev-gap" / "done.json").exists()
+    assert list((killed / "ev-gap" / "run").glob("replay*.npz"))  # kept while the stage can resume
     proc = _reproduce(SHARED, killed)
     out = _finish(proc)
     assert proc.returncode == 0, out[-2000:]
