@@ -42,10 +42,13 @@ def test_the_digest_is_the_files_sha256_and_a_missing_parent_is_one_line(tmp_pat
 
 
 def test_a_checkpoint_without_a_lineage_still_loads_and_one_with_it_round_trips(tmp_path):
-    for path in SHIPPED.glob("*.pt"):  # written before lineage: unknown, not an error
-        assert "lineage" not in read_checkpoint(path) and load_policy(path)[1].scenario in ("ice", "ev")
+    for path in SHIPPED.glob("*.pt"):  # written before lineage (unknown, not an error), or by its own recipe's last stage
+        lineage = read_checkpoint(path).get("lineage")
+        assert lineage is None or (lineage["recipe"]["name"], lineage["recipe"]["smoke"]) == (path.stem, False)
+        assert load_policy(path)[1].scenario in ("ice", "ev")
     save_policy(QNetwork(), Config(), tmp_path / "plain.pt")
     assert "lineage" not in torch.load(tmp_path / "plain.pt", weights_only=True)
+    assert "lineage" not in read_checkpoint(tmp_path / "plain.pt") and load_policy(tmp_path / "plain.pt")[1] == Config()
     lineage = make_lineage("narrow", [SHIPPED / "ice-eco.pt"])
     save_policy(QNetwork(), Config(), tmp_path / "p.pt", lineage=lineage)
     assert read_checkpoint(tmp_path / "p.pt")["lineage"] == lineage  # under the digest: read_checkpoint checked it
