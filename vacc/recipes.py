@@ -26,8 +26,9 @@ earlier stage as ``"stage:<name>"``, never a path: nothing outside the recipe an
 repository is needed. The recipe's digest is the SHA-256 of its canonical content
 (:func:`digest`), recorded in every checkpoint a stage writes.
 
-A stage's ``known_weights`` is the SHA-256 of the weights that stage made when the model was
-first built (:func:`vacc.reproduce.weights_sha256` of a file kept in git history): a rebuild
+A stage's ``known_weights`` is the SHA-256 of the weights that stage made for the shipped model,
+when it was first built or in the rebuild that was shipped (:func:`vacc.reproduce.weights_sha256`
+of a file kept in git history or of that rebuild's stage): a rebuild
 with the recipe's own seed says whether it made them again bit for bit. It records an
 outcome, not an input, so it is left out of the digest: writing one in does not invalidate
 a run under way. ``cpu_path`` says how the stages run, not what they are, so it is left out too.
