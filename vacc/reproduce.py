@@ -206,9 +206,11 @@ def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict
     """Copy ``source``'s finished stage that is ``stage`` into ``out``; its record, else None.
 
     The stage of the same name is looked at first, then every other (keys leave names out, so
-    a stage another recipe names otherwise is found). A record from before keys were written
-    is the same stage where this one is compared with its ``known_weights`` (``known``) and the
-    record made exactly those weights."""
+    a stage another recipe names otherwise is found). Where this stage is compared with its
+    ``known_weights`` (``known``), a record that made exactly those weights is this stage
+    whatever its key: a record from before keys were written, or one whose key counts options
+    that change nothing (ev-force's ``ev-gap`` is ev-gap's ``base`` with another thread count
+    and eco weights its gap reward never reads)."""
     same_name = source / stage.name
     for sdir_src in [same_name, *sorted(d for d in source.iterdir() if d.is_dir() and d != same_name)]:
         record_file = sdir_src / "done.json"
@@ -218,7 +220,7 @@ def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict
         src = sdir_src / str(record.get("output", f"{sdir_src.name}.pt"))
         if not src.is_file() or record.get("sha256") != file_sha256(src):
             continue
-        made_known = known and "stage_key" not in record and record.get("weights_sha256") == stage.known_weights
+        made_known = known and record.get("weights_sha256") == stage.known_weights
         if record.get("stage_key") != key and not made_known:
             continue
         record["stage_key"] = key

@@ -70,9 +70,10 @@ def test_a_tail_replicate_keeps_the_recipe_seeds_before_its_first_stage(tmp_path
     assert not (tmp_path / "x").exists()
 
 
-def test_a_record_older_than_stage_keys_is_reused_only_where_it_made_the_known_weights(tmp_path, capsys):
+def test_a_record_of_another_key_is_reused_only_where_it_made_the_known_weights(tmp_path, capsys):
     """ice-gap's rebuilt first stage predates stage keys; ice-eco's first stage is the same
-    stage, and its known weights say so: reusable at the recipe's seed, never otherwise."""
+    stage, and its known weights say so: reusable at the recipe's seed, never otherwise. So is
+    a keyed record of a stage whose inert options differ, where it made the known weights."""
     from vacc.recipes import load_recipe
     from vacc.reproduce import _reuse, file_sha256
 
@@ -89,9 +90,12 @@ def test_a_record_older_than_stage_keys_is_reused_only_where_it_made_the_known_w
     assert "it made this stage's known weights" in capsys.readouterr().err
     (src / "done.json").write_text(json.dumps({**record, "weights_sha256": "0" * 64}))  # other weights
     assert _reuse(stage, "k" * 64, tmp_path / "c", tmp_path / "src", known=True) is None
-    (src / "done.json").write_text(json.dumps({**record, "stage_key": "j" * 64}))  # a keyed record of another stage
+    (src / "done.json").write_text(json.dumps({**record, "weights_sha256": "0" * 64, "stage_key": "j" * 64}))  # another stage
     assert _reuse(stage, "k" * 64, tmp_path / "d", tmp_path / "src", known=True) is None
     assert not any((tmp_path / d).exists() for d in "acd")
+    (src / "done.json").write_text(json.dumps({**record, "stage_key": "j" * 64}))  # another key, the known weights
+    got = _reuse(stage, "k" * 64, tmp_path / "e", tmp_path / "src", known=True)
+    assert got is not None and got["stage_key"] == "k" * 64 and got["reused_from"] == str(src)
 
 
 def test_a_stage_another_recipe_names_otherwise_is_reused_by_its_key(tmp_path, capsys):
