@@ -10,6 +10,11 @@ shipped model passes, driven with the evaluation's own runs and scores
 * ``energy``: the mean energy over the tests against the ACC's on the same runs;
 * ``comfort``: the mean jerk RMS and ISO 1-s jerk share over the tests, after the settle.
 
+Beside the checks the report holds ``measures``, figures no gate bounds that ``vacc seeds``
+summarises over training seeds (issue #54): on the tests and on the random leads, the mean gap
+RMSE, the closest gap, the ISO jerk share and the energy against the ACC's on the same runs (the
+ACC drives both sets for every recipe); in the safety suite, the closest gap.
+
 ``--quick`` (tests only) drives 2 s of each run, the first seed of each set and the
 first two safety scenarios: it checks that the gates run, not that a model passes.
 """
@@ -35,7 +40,7 @@ from vacc.recipes import Recipe, RecipeError, load_recipe
 from vacc.runs import Job, drive_jobs, log_path, parse_seeds, score_runs
 from vacc.safety import safety_jobs, score_run
 
-__all__ = ["Check", "QUICK_SECONDS", "VEHICLES", "evaluate_gates", "gate_table", "gates"]
+__all__ = ["Check", "Measure", "QUICK_SECONDS", "VEHICLES", "evaluate_gates", "gate_table", "gates"]
 
 QUICK_SECONDS = 2.0  # [s] each run of --quick
 QUICK_SCENARIOS = 2  # safety scenarios --quick drives
@@ -53,27 +58,50 @@ class Check(NamedTuple):
     detail: str = ""  # what this run adds, e.g. the closest gap of a safety scenario
 
 
+class Measure(NamedTuple):
+    """A figure of the report that no gate bounds."""
+
+    gate: str  # where it was measured: tests, safety or random
+    what: str
+    figure: float
+
+
+def _measures(gate: str, model: list[dict[str, Any]], acc: list[dict[str, Any]], energy_key: str) -> list[Measure]:
+    """The measures of one set of runs (each a dict of metrics): mean gap RMSE, closest gap, mean
+    ISO jerk share and, where the ACC drove the same runs, the energy against its."""
+    out = [
+        Measure(gate, "mean gap RMSE (m)", float(np.mean([m["gap_rmse_55m_m"] for m in model]))),
+        Measure(gate, "closest gap (m)", float(min(m["gap_min_m"] for m in model))),
+        Measure(gate, "mean ISO jerk share", float(np.mean([m["iso_jerk_window_share"] for m in model]))),
+    ]
+    if acc:
+        ratio = float(np.mean([m[energy_key] for m in model]) / np.mean([m[energy_key] for m in acc]))
+        out.append(Measure(gate, "energy / the ACC's", ratio))
+    return out
+
+
 def _seeds(text: str, quick: bool) -> list[int]:
     seeds = parse_seeds(text)
     return seeds[:1] if quick else seeds
 
 
-def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
-    """The tests, energy and comfort gates: test-1..test-4 driven by the model (and the ACC
-    where the energy gate asks for it)."""
+def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> tuple[list[Check], list[Measure]]:
+    """The tests, energy and comfort gates and the tests' measures: test-1..test-4 driven by
+    the model and the ACC."""
     g = recipe.gates
     if not {"tests", "energy", "comfort"} & set(g):
-        return []
+        return [], []
     seed = g.get("tests", {}).get("seed", 0)
     duration = QUICK_SECONDS if quick else None
     settle = 0.0 if quick else SETTLE_S
-    methods = ["ddqn"] + (["acc"] if "energy" in g else [])
+    methods = ["ddqn", "acc"]
     (out / "logs").mkdir(parents=True, exist_ok=True)
     work = [Job(m, t, recipe.scenario, seed, str(log_path(out, m, t)), duration, str(ckpt) if m == "ddqn" else None)
             for m in methods for t in TEST_TRAJECTORIES]  # fmt: skip
     drive_jobs(work, jobs, f"gates {recipe.name}: tests")
     runs = score_runs(out, methods, VEHICLES[recipe.scenario], settle)
     model = [r for r in runs if r.method == "ddqn"]
+    acc = [r for r in runs if r.method == "acc"]
     checks = []
     if "tests" in g:
         bound = float(g["tests"]["max_gap_rmse_m"])
@@ -84,7 +112,6 @@ def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) 
         checks.append(Check("tests", "collisions", collisions, 0.0, collisions == 0))
     if "energy" in g:
         key = ENERGY[recipe.scenario][0]
-        acc = [r for r in runs if r.method == "acc"]
         ratio = float(np.mean([r.metrics[key] for r in model]) / np.mean([r.metrics[key] for r in acc]))
         bound = float(g["energy"]["max_ratio_to_acc"])
         checks.append(Check("energy", f"{key} / the ACC's", ratio, bound, ratio <= bound))
@@ -93,13 +120,13 @@ def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) 
             figure = float(np.mean([r.metrics[key] for r in model]))
             bound = float(g["comfort"][name])
             checks.append(Check("comfort", f"mean {key}", figure, bound, math.isfinite(figure) and figure <= bound))
-    return checks
+    return checks, _measures("tests", [r.metrics for r in model], [r.metrics for r in acc], ENERGY[recipe.scenario][0])
 
 
-def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
-    """The safety gate: each scenario's runs over the seeds must all pass."""
+def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> tuple[list[Check], list[Measure]]:
+    """The safety gate: each scenario's runs over the seeds must all pass; the closest gap."""
     if "safety" not in recipe.gates:
-        return []
+        return [], []
     g = recipe.gates["safety"]
     scenarios = g["scenarios"][:QUICK_SCENARIOS] if quick else g["scenarios"]
     (out / "logs").mkdir(parents=True, exist_ok=True)
@@ -107,30 +134,35 @@ def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int
     if quick:
         work = [dataclasses.replace(j, duration=QUICK_SECONDS) for j in work]
     drive_jobs(work, jobs, f"gates {recipe.name}: safety")
-    checks = []
+    checks, closest = [], math.inf
     for scenario in scenarios:
         scores = [score_run(j.log) for j in work if j.trajectory == scenario]
         passed = sum(s["passed"] for s in scores)
+        closest = min(closest, *(s["min_gap_m"] for s in scores))
         checks.append(Check("safety", f"{scenario}: runs passed", float(passed), float(len(scores)), passed == len(scores),
                             f"min gap {min(s['min_gap_m'] for s in scores):.1f} m"))  # fmt: skip
-    return checks
+    return checks, [Measure("safety", "closest gap (m)", float(closest))]
 
 
-def _random_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> list[Check]:
-    """The held-out random leads: the worst gap RMSE, and no collision."""
+def _random_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> tuple[list[Check], list[Measure]]:
+    """The held-out random leads: the worst gap RMSE, and no collision; their measures (the
+    ACC drives the same leads)."""
     if "random" not in recipe.gates:
-        return []
+        return [], []
     g = recipe.gates["random"]
     out = out / "random"
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = random_jobs(out, {recipe.name: str(ckpt)}, recipe.scenario, _seeds(g["seeds"], quick), acc=False,
+    work = random_jobs(out, {recipe.name: str(ckpt)}, recipe.scenario, _seeds(g["seeds"], quick), acc=True,
                        duration=QUICK_SECONDS if quick else None)  # fmt: skip
     drive_jobs(work, jobs, f"gates {recipe.name}: random")
-    scores = [score_random_run(j, VEHICLES[recipe.scenario], 0.0 if quick else SETTLE_S) for j in work]
+    settle = 0.0 if quick else SETTLE_S
+    scores = [score_random_run(j, VEHICLES[recipe.scenario], settle) for j in work if j.method != "acc"]
+    acc = [score_random_run(j, VEHICLES[recipe.scenario], settle) for j in work if j.method == "acc"]
     worst = max(float(s["gap_rmse_55m_m"]) for s in scores)
     collisions = float(sum(s["collisions"] for s in scores))
     bound = float(g["max_gap_rmse_m"])
-    return [Check("random", "worst gap RMSE (m)", worst, bound, worst <= bound), Check("random", "collisions", collisions, 0.0, collisions == 0)]
+    checks = [Check("random", "worst gap RMSE (m)", worst, bound, worst <= bound), Check("random", "collisions", collisions, 0.0, collisions == 0)]
+    return checks, _measures("random", scores, acc, ENERGY[recipe.scenario][0])
 
 
 def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool = False, jobs: int = 1) -> dict[str, Any]:
@@ -144,14 +176,16 @@ def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool =
         click.ClickException: a run failed or its log is invalid.
     """
     out.mkdir(parents=True, exist_ok=True)
-    checks = [
-        *_test_checks(recipe, checkpoint, out, quick, jobs),
-        *_safety_checks(recipe, checkpoint, out, quick, jobs),
-        *_random_checks(recipe, checkpoint, out, quick, jobs),
-    ]
+    checks: list[Check] = []
+    measures: list[Measure] = []
+    for part in (_test_checks, _safety_checks, _random_checks):
+        c, m = part(recipe, checkpoint, out, quick, jobs)
+        checks += c
+        measures += m
     report = {
         "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": file_sha256(checkpoint),
         "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
+        "measures": [m._asdict() for m in measures],
     }  # fmt: skip
     (out / "gates.json").write_text(json.dumps(report, indent=1) + "\n")
     return report

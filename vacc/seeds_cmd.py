@@ -6,7 +6,9 @@ Each ``gates.json`` is one training seed's model checked against its recipe
 * the share of seeds whose model passes every gate, and each check's pass share;
 * each check's figure as the interquartile mean over seeds with a 95 % percentile
   bootstrap interval (:mod:`vacc.stats`), and the test trajectories' gap RMSE pooled
-  with the interval stratified by trajectory (rliable's ``StratifiedBootstrap``).
+  with the interval stratified by trajectory (rliable's ``StratifiedBootstrap``);
+* the same for the report's measures, which no gate bounds: the mean gap RMSE, the closest
+  gap, the ISO jerk share and the energy against the ACC, on the tests and on the random leads.
 
 Agarwal et al. 2021: with 3-10 runs, report the IQM and its interval, not a best seed.
 """
@@ -100,7 +102,23 @@ def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
     if per_test and (est := _estimate(per_test)) is not None:
         pooled = {"what": "test-1..4 gap RMSE (m), stratified by trajectory", "iqm": est.value, "low": est.low, "high": est.high, "n": est.n}
     passed_all = sum(all(c["passed"] for c in r["checks"]) for r in reports)
-    return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled}
+    return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled,
+            "measures": _measure_rows(reports)}  # fmt: skip
+
+
+def _measure_rows(reports: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each measure's IQM and interval over the reports that hold it (a report written before
+    gates measured is left out; ``n`` says how many)."""
+    rows: dict[tuple[str, str], dict[str, Any]] = {}
+    for r in reports:
+        for m in r.get("measures", []):
+            rows.setdefault((m["gate"], m["what"]), {"gate": m["gate"], "what": m["what"], "figures": []})["figures"].append(float(m["figure"]))
+    out = []
+    for row in rows.values():
+        est = _estimate([row["figures"]])
+        nan = float("nan")
+        out.append({**row, "n": len(row["figures"]), "iqm": est.value if est else nan, "low": est.low if est else nan, "high": est.high if est else nan})
+    return out
 
 
 def summary_table(s: dict[str, Any]) -> str:
@@ -119,6 +137,11 @@ def summary_table(s: dict[str, Any]) -> str:
         lines.append(f"| {c['gate']} | {c['what']} | {c['passed']}/{c['n']} | {value} | {c['bound']:g} |")
     if (p := s["pooled_tests"]) is not None:
         lines.append(f"| tests | {p['what']} | | {p['iqm']:.3f} [{p['low']:.3f}, {p['high']:.3f}] | |")
+    if s.get("measures"):
+        lines += ["", f"| where | measure (no gate) | seeds | IQM over seeds [{ci} CI] |", "| --- | --- | --- | --- |"]
+        for m in s["measures"]:
+            value = "n/a" if not math.isfinite(m["iqm"]) else f"{m['iqm']:.3f} [{m['low']:.3f}, {m['high']:.3f}]"
+            lines.append(f"| {m['gate']} | {m['what']} | {m['n']} | {value} |")
     return "\n".join(lines)
 
 

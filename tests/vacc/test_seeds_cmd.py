@@ -81,3 +81,15 @@ def test_reports_that_named_the_closest_gap_in_the_check_group_with_the_new_ones
     paths[0].write_text(json.dumps(old))
     s = seed_summary([json.loads(p.read_text()) for p in paths])
     assert [c["n"] for c in s["checks"] if c["gate"] == "safety"] == [3]
+
+
+def test_measures_no_gate_bounds_are_summarised_over_the_reports_that_hold_them(tmp_path):
+    """A report from before gates measured (seed 0) is left out of a measure's row, and said."""
+    closest = {1: 4.0, 2: 6.0}
+    paths = [_report(tmp_path, 0)] + [_report(tmp_path, s, measures=[{"gate": "random", "what": "closest gap (m)", "figure": closest[s]}]) for s in closest]
+    s = seed_summary([json.loads(p.read_text()) for p in paths])
+    (row,) = s["measures"]
+    assert (row["gate"], row["what"], row["n"]) == ("random", "closest gap (m)", 2)
+    assert row["iqm"] == pytest.approx(5.0) and 4.0 <= row["low"] <= row["iqm"] <= row["high"] <= 6.0
+    result = CliRunner().invoke(main, ["seeds", *map(str, paths)])
+    assert result.exit_code == 0 and "| random | closest gap (m) | 2 | 5.000 [" in result.output
