@@ -255,5 +255,5 @@ def make_action_type(name: str) -> ActionType:
     if name == "ramp-fine":
         return FineRamp()
     if name == "continuous":
-        return ContinuousRamp()
+        return ContinuousRamp()  # type: ignore[return-value]  # its actions are floats: the protocol's discrete signatures, overridden
     raise ValueError(f"action type {name!r} is not one of {ACTION_TYPES}")

@@ -160,9 +160,9 @@ def _pinhole(cfg: CameraConfig, *, shortcut: bool = False) -> _Projection:
     cx, cy = cfg.principal_point
     h = cfg.mount_height
     if shortcut and cfg.pitch == 0.0:
-        def project(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
+        def project_level(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
             return x / z * f + cx, (h - y) / z * f + cy
-        return project
+        return project_level
     cp, sp = math.cos(cfg.pitch), math.sin(cfg.pitch)
 
     def project(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
@@ -1114,7 +1114,7 @@ class Renderer:
         circle, fill = cv2.circle, cv2.fillConvexPoly
         for t in view.trees:
             if t.trunk is not None:
-                fill(img, qa[t.trunk], t.trunk_rgb, L8, SHIFT)
+                fill(img, qa[t.trunk], t.trunk_rgb or _TRUNK_RGB, L8, SHIFT)  # set wherever trunk is
             circle(img, t.crown.center, t.crown.radius, t.crown.rgb, -1, L8, SHIFT)
             if t.lit is not None:
                 circle(img, t.lit.center, t.lit.radius, t.lit.rgb, -1, L8, SHIFT)

@@ -53,7 +53,7 @@ class AccFit:
 
 
 def acc_accel(
-    gap: np.ndarray, v: np.ndarray, v_lead: np.ndarray, a_lead: np.ndarray,
+    gap: np.ndarray, v: np.ndarray, v_lead: np.ndarray | float, a_lead: np.ndarray | float,
     beta: np.ndarray, gamma: np.ndarray, t_gap: np.ndarray, law: AccController = DEFAULT_LAW,
     set_speed: float = DEFAULT_SET_SPEED,
 ) -> np.ndarray:
@@ -171,7 +171,8 @@ def fit_follower(run: OpenAccRun, follower: int, law: AccController = DEFAULT_LA
     ok = np.isfinite(ivs)
 
     def residuals(points: np.ndarray) -> np.ndarray:  # [P, 3] -> [P, samples]
-        return replay_spacing(v_lead, ivs[0], v_f[0], *points.T, law=law)[:, ok] - ivs[ok]
+        beta, gamma, t_gap = points.T
+        return replay_spacing(v_lead, ivs[0], v_f[0], beta, gamma, t_gap, law=law)[:, ok] - ivs[ok]
 
     points = np.stack(_grid(lo, hi, GRID_POINTS), axis=1)  # [P, 3]
     err = np.sqrt(np.mean(residuals(points) ** 2, axis=1))
@@ -179,4 +180,5 @@ def fit_follower(run: OpenAccRun, follower: int, law: AccController = DEFAULT_LA
     best_p = _levenberg_marquardt(residuals, starts, lo, hi)
     best = (*best_p, float(np.sqrt(np.mean(residuals(best_p[None])[0] ** 2))))
     assert best is not None
-    return AccFit(run.name, follower, run.vehicles[follower], *(float(b) for b in best[:3]), best[3], int(np.isfinite(ivs).sum()))
+    beta, gamma, t_gap = (float(b) for b in best[:3])
+    return AccFit(run.name, follower, run.vehicles[follower], beta, gamma, t_gap, best[3], int(np.isfinite(ivs).sum()))

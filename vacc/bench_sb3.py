@@ -140,7 +140,7 @@ def sb3_decision_latency(repeats: int = 300) -> dict[str, Any]:
         policy = MultiInputPolicy(obs_space, action_space, lambda _: 1e-4, net_arch=[], features_extractor_class=_extractor_class())
         policy.set_training_mode(False)
         rng = np.random.default_rng(0)
-        obs = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32)}
+        obs: dict[str, np.ndarray] = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32)}
         return latency(lambda: policy.predict(obs, deterministic=True), repeats)
 
 
@@ -162,7 +162,7 @@ def sb3_sac_decision_latency(repeats: int = 300) -> dict[str, Any]:
                                   features_extractor_class=_extractor_class(), share_features_extractor=True)  # fmt: skip
         policy.set_training_mode(False)
         rng = np.random.default_rng(0)
-        obs = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32),
+        obs: dict[str, np.ndarray] = {"frames": rng.integers(0, 256, obs_space["frames"].shape, dtype=np.uint8), "speeds": np.full(8, 30.0, np.float32),
                "controls": np.zeros((8, 2), np.float32)}  # fmt: skip
         return latency(lambda: policy.predict(obs, deterministic=True), repeats)
 

@@ -39,17 +39,17 @@ __all__ = ["PLATOONS", "STILL_LEAD_MPS", "PlatoonRow", "camera_row", "openacc_ro
 STILL_LEAD_MPS = 0.1  # [m/s] a lead deviating less than this makes no wave to amplify
 
 
-def _acc(i: int) -> tuple[Callable[[dict[str, Any]], float], float]:
+def _acc(i: int) -> tuple[Any, Callable[[float], float]]:
     law = AccController()
     return law, law.reference_gap
 
 
-def _hdm(i: int) -> tuple[Callable[[dict[str, Any]], float], float]:
+def _hdm(i: int) -> tuple[Any, Callable[[float], float]]:
     p = HdmParams()
-    return HumanDriverModel(p, seed=i), lambda v: p.s0 + p.t_gap * v  # type: ignore[return-value]
+    return HumanDriverModel(p, seed=i), lambda v: p.s0 + p.t_gap * v
 
 
-# Each platoon kind: follower i (1 = nearest the lead) -> (controller, its equilibrium gap at a speed).
+# Each platoon kind: follower i (1 = nearest the lead) -> (controller, its equilibrium gap [m] at a speed [m/s]).
 PLATOONS: dict[str, Callable[[int], Any]] = {
     "acc": _acc,
     "hdm": _hdm,

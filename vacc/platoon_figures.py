@@ -44,7 +44,7 @@ def plot_time_space(out: Path, t: np.ndarray, x: np.ndarray, v: np.ndarray, name
     for xi, vi in zip(x, v, strict=True):
         pts = np.stack([t, xi], axis=1)
         seg = np.stack([pts[:-1], pts[1:]], axis=1)  # [N - 1, 2, 2]
-        lc = LineCollection(seg, cmap="viridis", norm=norm, linewidths=0.8)
+        lc = LineCollection(list(seg), cmap="viridis", norm=norm, linewidths=0.8)
         lc.set_array(0.5 * (vi[1:] + vi[:-1]))
         ax.add_collection(lc)
     ax.set_xlim(float(t[0]), float(t[-1]))
@@ -62,7 +62,7 @@ def plot_amplification(
     """Amplification from the lead to each car i, by position, in RMS and peak, for speed deviation and acceleration."""
     plt = _plt()
     pos = np.arange(1, v.shape[0])
-    rows = [amplification(t, v[[0, i]], skip_fraction=skip_fraction).lead_to_last for i in pos]
+    rows = [amplification(t, v[[0, int(i)]], skip_fraction=skip_fraction).lead_to_last for i in pos]
     fig, axes = plt.subplots(1, 2, figsize=(6.5, 2.8), sharex=True)
     for ax, signal in zip(axes, ("speed", "accel"), strict=True):
         for norm, marker in (("rms", "o"), ("peak", "s")):

@@ -100,7 +100,7 @@ def stage_key(recipe: Recipe, stage: Stage, opts: dict[str, Any], parents: list[
 
 def smoke_config(cfg: Config) -> Config:
     """``cfg`` cut to a few dozen steps (:data:`SMOKE`), evaluated on its first trajectory."""
-    small = {k: (min(getattr(cfg, k), v) if getattr(cfg, k) is not None else v) for k, v in SMOKE.items()}
+    small: dict[str, Any] = {k: (min(getattr(cfg, k), v) if getattr(cfg, k) is not None else v) for k, v in SMOKE.items()}
     return dataclasses.replace(cfg, **small, eval_trajectories=cfg.eval_trajectories[:1])
 
 

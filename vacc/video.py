@@ -77,7 +77,7 @@ def episode_from_card(log: str | Path) -> Episode:
     sun = road.get("sun_elevation")
     return Episode(
         ep["scenario"], ep["trajectory"], int(ep["seed"]), ep.get("set_speed"), ep.get("host_speed"), ep.get("gap"), ep.get("duration"),
-        Road(int(road.get("traffic") if road.get("traffic") is not None else DEFAULT_ROAD.traffic), tuple(sun) if sun else DEFAULT_ROAD.sun_elevation),
+        Road(int(road["traffic"]) if road.get("traffic") is not None else DEFAULT_ROAD.traffic, tuple(sun) if sun else DEFAULT_ROAD.sun_elevation),
         int(road.get("seed_salt") or 0),
     )  # fmt: skip
 
@@ -172,7 +172,7 @@ class VideoWriter:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             for codec in CODECS:
                 with _quiet_stderr():  # FFmpeg prints its failed H.264 probes to fd 2
-                    writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*codec), fps, size)
+                    writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter.fourcc(*codec), fps, size)
                 if writer.isOpened():
                     self._cv, self.codec = writer, codec
                     break
