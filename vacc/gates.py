@@ -137,10 +137,9 @@ def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int
     checks, closest = [], math.inf
     for scenario in scenarios:
         scores = [score_run(j.log) for j in work if j.trajectory == scenario]
-        passed = sum(s["passed"] for s in scores)
-        closest = min(closest, *(s["min_gap_m"] for s in scores))
-        checks.append(Check("safety", f"{scenario}: runs passed", float(passed), float(len(scores)), passed == len(scores),
-                            f"min gap {min(s['min_gap_m'] for s in scores):.1f} m"))  # fmt: skip
+        passed, low = sum(s["passed"] for s in scores), min(s["min_gap_m"] for s in scores)
+        closest = min(closest, low)
+        checks.append(Check("safety", f"{scenario}: runs passed", float(passed), float(len(scores)), passed == len(scores), f"min gap {low:.1f} m"))
     return checks, [Measure("safety", "closest gap (m)", float(closest))]
 
 
