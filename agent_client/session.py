@@ -140,6 +140,9 @@ class Session:
         self._rtt = {"reset": _RoundTrip(retry_first_reset), "other": _RoundTrip(retry_initial)}
         self._closed = False
         self._heartbeat_seq = 0
+        # the last request refused with a recoverable error, and the error: a re-sent copy of
+        # that request may draw the same error again, after the caller has moved on
+        self._refused: tuple[dict[str, Any], dict[str, Any]] | None = None
         self._last_send = time.monotonic()  # [s] when a request last went out
         self._stop = threading.Event()
         self._keepalive: threading.Thread | None = None
@@ -390,11 +393,14 @@ class Session:
                     self.resends += 1
                     resent = True
                     continue
+                if reply["type"] == "error" and self._refused is not None and reply == self._refused[1] and msg != self._refused[0]:
+                    continue  # the answer to an earlier copy of a request already refused
                 if reply["type"] == "error" and error_match(reply):
                     text = f"server {self._where()}: {reply['name']}: {reply['detail']}"
                     if reply["fatal"]:
                         self.token = None  # the server holds no session for it any more
                         raise FatalSessionError(text, reply["code"])
+                    self._refused = (msg, reply)
                     raise SessionError(text, reply["code"])
                 continue  # stale or duplicate reply
             if got is not None and isinstance(got.error, VersionError) and got.addr == server and msg["type"] == "hello":

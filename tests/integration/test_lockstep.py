@@ -120,6 +120,20 @@ def test_recoverable_errors_keep_the_session(server):
         assert s.reset(seed=3)["frame"] == 0
 
 
+def test_a_late_copy_of_a_refused_step_does_not_refuse_the_next(server):
+    # Under load a refused step may be re-sent; its second refusal arrives after the
+    # caller has moved on to a good action for the same frame, and must not refuse that.
+    with Session(server) as s:
+        s.reset(seed=2)
+        bad = {"type": "step", "session": s.token, "episode": s.episode, "frame": 0, "action": 1.5}
+        with pytest.raises(SessionError, match="BAD_ACTION"):
+            s.step(1.5)
+        for _ in range(2):  # the re-sent copies, by hand
+            s.endpoint.send(bad, s.server)
+        time.sleep(0.3)  # their refusals now wait in the socket
+        assert s.step(0.0)["frame"] == 1
+
+
 def test_repeated_step_is_answered_from_cache_not_resimulated(server):
     with Session(server) as s:
         s.reset(seed=0)
