@@ -45,6 +45,8 @@ def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
             _ = (report["recipe"], report["recipe_digest"], report["sha256"])
             for c in report["checks"]:
                 _ = (c["gate"], c["what"], float(c["figure"]), c["bound"], bool(c["passed"]))
+            for m in report.get("measures", []):  # absent from reports before gates measured
+                _ = (m["gate"], m["what"], float(m["figure"]))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise click.ClickException(f"{path}: not a gates report of `vacc gates` ({exc})") from None
         if report.get("quick"):
@@ -73,6 +75,13 @@ def _estimate(tasks: list[list[float]]) -> Estimate | None:
     return bootstrap_ci(finite, iqm) if finite else None
 
 
+def _summarised(row: dict[str, Any]) -> dict[str, Any]:
+    """The row with its figures' count, IQM and interval (NaN where none is finite)."""
+    est = _estimate([row["figures"]])
+    nan = float("nan")
+    return {**row, "n": len(row["figures"]), "iqm": est.value if est else nan, "low": est.low if est else nan, "high": est.high if est else nan}
+
+
 def _what(check: dict[str, Any]) -> str:
     """The check's name; a report before the detail field carried the closest gap in it."""
     return LEGACY_DETAIL.sub("", check["what"])
@@ -91,12 +100,7 @@ def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
             row = rows.setdefault((c["gate"], what), {"gate": c["gate"], "what": what, "bound": c["bound"], "figures": [], "passed": 0})
             row["figures"].append(float(c["figure"]))
             row["passed"] += bool(c["passed"])
-    out = []
-    for row in rows.values():
-        est = _estimate([row["figures"]])
-        nan = float("nan")
-        out.append({**row, "n": len(row["figures"]), "non_finite": sum(not math.isfinite(x) for x in row["figures"]),
-                    "iqm": est.value if est else nan, "low": est.low if est else nan, "high": est.high if est else nan})  # fmt: skip
+    out = [{**_summarised(row), "non_finite": sum(not math.isfinite(x) for x in row["figures"])} for row in rows.values()]
     per_test = [row["figures"] for (gate, what), row in rows.items() if gate == POOLED_TESTS[0] and what.endswith(POOLED_TESTS[1]) and what.startswith("test-")]
     pooled = None
     if per_test and (est := _estimate(per_test)) is not None:
@@ -113,12 +117,7 @@ def _measure_rows(reports: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     for r in reports:
         for m in r.get("measures", []):
             rows.setdefault((m["gate"], m["what"]), {"gate": m["gate"], "what": m["what"], "figures": []})["figures"].append(float(m["figure"]))
-    out = []
-    for row in rows.values():
-        est = _estimate([row["figures"]])
-        nan = float("nan")
-        out.append({**row, "n": len(row["figures"]), "iqm": est.value if est else nan, "low": est.low if est else nan, "high": est.high if est else nan})
-    return out
+    return [_summarised(row) for row in rows.values()]
 
 
 def summary_table(s: dict[str, Any]) -> str:

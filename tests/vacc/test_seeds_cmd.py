@@ -54,6 +54,7 @@ def test_the_command_prints_the_table_and_refuses_mixed_quick_or_repeated_report
     for extra, words in (
         (_report(other, 0, recipe_digest="b" * 64), "summarise one recipe's seeds at a time"),
         (_report(other, 1, quick=True), "a --quick report"),
+        (_report(other, 2, measures=[{"gate": "random", "figure": 1.0}]), "not a gates report of `vacc gates` ('what')"),
         (Path(paths[0]), "the same checkpoint as"),
     ):
         done = CliRunner().invoke(main, ["seeds", *paths, str(extra)])
@@ -85,11 +86,11 @@ def test_reports_that_named_the_closest_gap_in_the_check_group_with_the_new_ones
 
 def test_measures_no_gate_bounds_are_summarised_over_the_reports_that_hold_them(tmp_path):
     """A report from before gates measured (seed 0) is left out of a measure's row, and said."""
-    closest = {1: 4.0, 2: 6.0}
-    paths = [_report(tmp_path, 0)] + [_report(tmp_path, s, measures=[{"gate": "random", "what": "closest gap (m)", "figure": closest[s]}]) for s in closest]
+    share = {1: 0.4, 2: 0.6}
+    paths = [_report(tmp_path, 0)] + [_report(tmp_path, s, measures=[{"gate": "random", "what": "mean ISO jerk share", "figure": share[s]}]) for s in share]
     s = seed_summary([json.loads(p.read_text()) for p in paths])
     (row,) = s["measures"]
-    assert (row["gate"], row["what"], row["n"]) == ("random", "closest gap (m)", 2)
-    assert row["iqm"] == pytest.approx(5.0) and 4.0 <= row["low"] <= row["iqm"] <= row["high"] <= 6.0
+    assert (row["gate"], row["what"], row["n"]) == ("random", "mean ISO jerk share", 2)
+    assert row["iqm"] == pytest.approx(0.5) and 0.4 <= row["low"] <= row["iqm"] <= row["high"] <= 0.6
     result = CliRunner().invoke(main, ["seeds", *map(str, paths)])
-    assert result.exit_code == 0 and "| random | closest gap (m) | 2 | 5.000 [" in result.output
+    assert result.exit_code == 0 and "| random | mean ISO jerk share | 2 | 0.500 [" in result.output
