@@ -16,6 +16,10 @@ RMSE, the ISO jerk share and the energy against the ACC's on the same runs (the 
 sets for every recipe); in the safety suite, the closest gap. (The closest gap of the tests and
 the random leads is their start gap, so it is not measured there.)
 
+The runs drive on the recipe's CPU kernels (``cpu_path``, :data:`vacc.host.CPU_PATHS`), as the
+gates at the end of ``vacc reproduce`` do: a report repeats bit for bit on one kernel path, and a
+last-bit difference in a Q-value can move a decision. The report names the path.
+
 ``--quick`` (tests only) drives 2 s of each run, the first seed of each set and the
 first two safety scenarios: it checks that the gates run, not that a model passes.
 """
@@ -35,6 +39,7 @@ import numpy as np
 from agent_client.rl.checkpoint import file_sha256
 from energy import SETTLE_S
 from protocol.scenarios import TEST_TRAJECTORIES
+from vacc.host import CPU_PATHS, pinned_path, use_cpu_path
 from vacc.paths import MODELS_DEFAULT, models_dir
 from vacc.random_suite import ENERGY, random_jobs, score_random_run
 from vacc.recipes import Recipe, RecipeError, load_recipe
@@ -183,7 +188,7 @@ def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool =
     report = {
         "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": file_sha256(checkpoint),
         "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
-        "measures": [m._asdict() for m in measures],
+        "measures": [m._asdict() for m in measures], "cpu_path": pinned_path(),
     }  # fmt: skip
     (out / "gates.json").write_text(json.dumps(report, indent=1) + "\n")
     return report
@@ -198,6 +203,7 @@ def gate_table(report: dict[str, Any]) -> str:
     n = sum(c["passed"] for c in report["checks"])
     verdict = "PASS" if report["passed"] else "FAIL"
     note = " (--quick: short runs, figures not meaningful)" if report["quick"] else ""
+    note += f" on {report['cpu_path']} kernels" if "cpu_path" in report else ""
     lines.append(f"\n{report['recipe']}: {verdict}, {n}/{len(report['checks'])} checks passed{note}")
     return "\n".join(lines)
 
@@ -208,12 +214,18 @@ def gate_table(report: dict[str, Any]) -> str:
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for gates.json and the run logs.")
 @click.option("--quick", is_flag=True, help="Short runs, one seed, two safety scenarios: checks the gates run (tests), not the model.")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
-def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, jobs: int) -> None:
+@click.option("--cpu-path", type=click.Choice(list(CPU_PATHS)), default=None,
+              help="The CPU kernels the runs drive on. Default: the recipe's, as `vacc reproduce` checks its model (a last-bit difference can move a decision).")  # fmt: skip
+def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, jobs: int, cpu_path: str | None) -> None:
     """Check a checkpoint against the gates of a recipe (a model name, or recipes/NAME.toml):
     print a pass/fail table with the figures and write OUT/gates.json. Exits 1 if a gate fails."""
     try:
         recipe = load_recipe(model_or_recipe)
     except RecipeError as exc:
+        raise click.ClickException(str(exc)) from None
+    try:
+        use_cpu_path(cpu_path or recipe.cpu_path)  # before torch computes: the runs' worker processes inherit it
+    except RuntimeError as exc:
         raise click.ClickException(str(exc)) from None
     ckpt = Path(checkpoint) if checkpoint else models_dir() / f"{recipe.name}.pt"
     if not ckpt.is_file():

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["CPU_PATHS", "cpu_model", "describe", "label", "use_cpu_path"]
+__all__ = ["CPU_PATHS", "PINNED", "cpu_model", "describe", "label", "pinned_path", "use_cpu_path"]
 
 CPU_PATHS: dict[str, dict[str, str]] = {
     # torch's own kernels, MKL and oneDNN kept to AVX2, which every x86-64 CPU since 2013 runs: an
@@ -19,6 +19,8 @@ CPU_PATHS: dict[str, dict[str, str]] = {
     "native": {},  # the machine's widest kernels: faster on some CPUs, bit for bit only with the same CPU
 }
 """The CPU code paths a training can be pinned to (``vacc reproduce --cpu-path``)."""
+
+PINNED = "VACC_CPU_PATH"  # the path this process was pinned to; children inherit it (a fresh one starts unpinned)
 
 
 def cpu_model() -> str:
@@ -60,7 +62,13 @@ def use_cpu_path(name: str) -> str:
     want = CPU_PATHS[name].get("ATEN_CPU_CAPABILITY", "").upper()
     if want and got not in (want, "DEFAULT"):  # DEFAULT: a CPU without it
         raise RuntimeError(f"torch already runs at {got} in this process: start it with " + " ".join(f"{k}={v}" for k, v in CPU_PATHS[name].items()))
+    os.environ[PINNED] = name
     return got
+
+
+def pinned_path() -> str:
+    """The :data:`CPU_PATHS` name this process was pinned to; ``native`` where none was."""
+    return os.environ.get(PINNED, "native")
 
 
 def label(host: dict[str, Any]) -> str:

@@ -52,13 +52,12 @@ from agent_client.rl.checkpoint import (
 from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
-from vacc.host import CPU_PATHS, describe, label, use_cpu_path
+from vacc.host import CPU_PATHS, PINNED, describe, label, pinned_path, use_cpu_path
 from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
            "timing_line", "duration", "identity", "identity_line"]
 
-PINNED = "VACC_CPU_PATH"  # the kernels this process was pinned to (a fresh one starts unpinned)
 SEED_STRIDE = 10_000
 """--seed N adds SEED_STRIDE * (N - recipe seed) to each train stage's seed."""
 
@@ -236,8 +235,8 @@ def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict
     return None
 
 
-def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool) -> None:
-    """Run the next train stage on :data:`~vacc.host.CPU_PATHS` ``[path]``: pinned in this process
+def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool, what: str = "the next stage") -> None:
+    """Run ``what`` (the next train stage, or the gates) on :data:`~vacc.host.CPU_PATHS` ``[path]``: pinned in this process
     while torch has computed nothing, else in a fresh one (``reexec``: this command again, whose
     finished stages are kept), since torch fixes its kernels at its first computation.
 
@@ -250,14 +249,13 @@ def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, pro
     if current is None:
         try:
             use_cpu_path(path)
-            os.environ[PINNED] = path
             return
         except RuntimeError:
             pass
     if reexec is None:
-        raise click.ClickException(f"the next stage runs on {path} kernels, this process on {current or 'others'}: run vacc reproduce again")
+        raise click.ClickException(f"{what} on {path} kernels, this process on {current or 'others'}: run vacc reproduce again")
     if progress:
-        click.echo(f"vacc reproduce: the next stage runs on {path} kernels: going on in a fresh process (the finished stages are kept)", err=True)
+        click.echo(f"vacc reproduce: {what} on {path} kernels: going on in a fresh process (the finished stages are kept)", err=True)
     env = {k: v for k, v in os.environ.items() if not any(k in p for p in CPU_PATHS.values())}
     reexec({**env, **CPU_PATHS[path], PINNED: path})
 
@@ -297,7 +295,7 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
               "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe(), "stage_key": key}  # fmt: skip
     if stage.kind == "train":
-        record["cpu_path"] = os.environ.get(PINNED, "native")  # the path asked (host.kernels: torch's own name for it)
+        record["cpu_path"] = pinned_path()  # the path asked (host.kernels: torch's own name for it)
     (sdir / "done.json").write_text(json.dumps(record, indent=1) + "\n")
     if stage.kind == "train" and not opts.get("keep_replay"):  # only a resume reads it: GBs a stage
         for buffer in (sdir / "run").glob("replay*.npz"):
@@ -382,6 +380,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     shutil.copyfile(out / last / f"{last}.pt", final)
     if STOP.is_set():
         raise KeyboardInterrupt
+    _pin_kernels(str(opts["cpu_path"]), reexec, progress, "the gates")  # the recipe's kernels, as `vacc gates` drives them
     t0 = time.perf_counter()
     report = evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
     stages = {name: {"kind": r["kind"], "wall_s": r.get("wall_s"), "host": r.get("host"), "reused": "reused_from" in r} for name, r in done.items()}

@@ -53,3 +53,23 @@ def test_pinning_after_torch_computed_is_refused_naming_the_variables():
     late = _run("late", "avx2")
     assert late.returncode != 0 and f"torch already runs at {_native()} in this process" in late.stderr
     assert "ATEN_CPU_CAPABILITY=avx2 MKL_ENABLE_INSTRUCTIONS=AVX2 ONEDNN_MAX_CPU_ISA=AVX2" in late.stderr
+
+
+@pytest.mark.slow
+def test_vacc_gates_drives_its_runs_on_the_recipes_kernels(tmp_path):
+    """The runs of `vacc gates` are worker processes of drive_jobs: they inherit the pin, so a
+    report's figures are those the gates at the end of `vacc reproduce` give (AVX2 for ice-gap)."""
+    import json
+
+    worker = (  # a worker of a pool as drive_jobs's (fork)
+        "import sys, torch\nfrom concurrent.futures import ProcessPoolExecutor\nfrom vacc.host import use_cpu_path\n"
+        "use_cpu_path(sys.argv[1])\n"
+        "def kernels():\n    torch.ones(2).add_(1)\n    return torch.backends.cpu.get_cpu_capability()\n"
+        "with ProcessPoolExecutor(1) as pool:\n    print(pool.submit(kernels).result())\n"
+    )
+    got = subprocess.run([sys.executable, "-c", worker, "avx2"], capture_output=True, text=True, timeout=120)
+    assert got.returncode == 0 and got.stdout.strip() in ("AVX2", "DEFAULT"), got.stderr
+    done = subprocess.run([sys.executable, "-m", "vacc", "gates", "ice-gap", "--quick", "--jobs", "1", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode in (0, 1) and "on avx2 kernels" in done.stdout, done.stderr[-2000:]
+    assert json.loads((tmp_path / "gates.json").read_text())["cpu_path"] == "avx2"
