@@ -7,8 +7,12 @@ Each ``gates.json`` is one training seed's model checked against its recipe
 * each check's figure as the interquartile mean over seeds with a 95 % percentile
   bootstrap interval (:mod:`vacc.stats`), and the test trajectories' gap RMSE pooled
   with the interval stratified by trajectory (rliable's ``StratifiedBootstrap``);
-* the same for the report's measures, which no gate bounds: the mean gap RMSE, the closest
-  gap, the ISO jerk share and the energy against the ACC, on the tests and on the random leads.
+* the same for the report's measures, which no gate bounds: the mean gap RMSE, the ISO jerk
+  share and the energy against the ACC on the tests and on the random leads, and the safety
+  suite's closest gap.
+
+``--across-recipes`` reads summaries that ``--json`` wrote, one per recipe, and prints one row
+each with the pass share and the key figures: the table of ``docs/results.md``.
 
 Agarwal et al. 2021: with 3-10 runs, report the IQM and its interval, not a best seed.
 """
@@ -26,9 +30,17 @@ import click
 
 from vacc.stats import CONFIDENCE, Estimate, bootstrap_ci, iqm
 
-__all__ = ["read_reports", "seed_summary", "summary_table", "seeds"]
+__all__ = ["read_reports", "seed_summary", "summary_table", "recipes_table", "seeds"]
 
 POOLED_TESTS = ("tests", "gap RMSE (m)")  # the per-trajectory checks pooled in one row
+ENERGY = "energy / the ACC's"
+RECIPE_COLUMNS = (  # --across-recipes: (header, (where, measure), decimals, in %)
+    ("tests: energy / ACC", ("tests", ENERGY), 3, False),
+    ("tests: ISO jerk %", ("tests", "mean ISO jerk share"), 1, True),
+    ("random: mean gap RMSE", ("random", "mean gap RMSE (m)"), 2, False),
+    ("random: energy / ACC", ("random", ENERGY), 3, False),
+    ("safety: closest gap", ("safety", "closest gap (m)"), 1, False),
+)
 LEGACY_DETAIL = re.compile(r" \(min gap [^)]*\)$")  # reports before Check.detail named the closest gap in "what"
 
 
@@ -144,13 +156,48 @@ def summary_table(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) -> str:
+    if row is None or not math.isfinite(row["iqm"]):
+        return "–"
+    k = 100.0 if percent else 1.0
+    return f"{k * row['iqm']:.{decimals}f} [{k * row['low']:.{decimals}f}, {k * row['high']:.{decimals}f}]"
+
+
+def recipes_table(paths: Sequence[Path]) -> str:
+    """One Markdown row per summary (``vacc seeds --json``): seeds, pass share, the pooled tests'
+    gap RMSE and :data:`RECIPE_COLUMNS`, each as IQM [interval].
+
+    Raises:
+        click.ClickException: one line naming the file that is not such a summary.
+    """
+    heads = ["model", "seeds", "pass every gate", "tests: gap RMSE"] + [c[0] for c in RECIPE_COLUMNS]
+    lines = ["| " + " | ".join(heads) + " |", "|" + " --- |" * len(heads)]
+    for path in paths:
+        try:
+            s = json.loads(path.read_text())
+            measures = {(m["gate"], m["what"]): m for m in s["measures"]}
+            cells = [s["recipe"], str(s["seeds"]), f"{s['passed_every_gate']} of {s['seeds']}", _interval(s["pooled_tests"], 2)]
+            cells += [_interval(measures.get(key), decimals, percent) for _, key, decimals, percent in RECIPE_COLUMNS]
+            fewer = min((m["n"] for m in measures.values()), default=0)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise click.ClickException(f"{path}: not a summary of `vacc seeds --json` ({exc})") from None
+        lines.append("| " + " | ".join(cells) + " |" + ("" if fewer == s["seeds"] else f" measures over {fewer} seeds"))
+    return "\n".join(lines)
+
+
 @click.command("seeds")
 @click.argument("reports", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the summary as JSON.")
-def seeds(reports: tuple[str, ...], json_out: str | None) -> None:
+@click.option("--across-recipes", is_flag=True, help="The arguments are summaries that --json wrote, one per recipe: print one row each (docs/results.md's table).")
+def seeds(reports: tuple[str, ...], json_out: str | None, across_recipes: bool) -> None:
     """Summarise one recipe's gate reports over training seeds (each a gates.json of
     `vacc gates` or `vacc reproduce --seed N`): the share of seeds that pass every gate,
     and each check's interquartile mean with a 95 % bootstrap interval."""
+    if across_recipes:
+        if json_out is not None:
+            raise click.UsageError("--json writes one recipe's summary; --across-recipes reads them")
+        click.echo(recipes_table([Path(p) for p in reports]))
+        return
     summary = seed_summary(read_reports([Path(p) for p in reports]))
     click.echo(summary_table(summary))
     if json_out is not None:

@@ -94,3 +94,20 @@ def test_measures_no_gate_bounds_are_summarised_over_the_reports_that_hold_them(
     assert row["iqm"] == pytest.approx(0.5) and 0.4 <= row["low"] <= row["iqm"] <= row["high"] <= 0.6
     result = CliRunner().invoke(main, ["seeds", *map(str, paths)])
     assert result.exit_code == 0 and "| random | mean ISO jerk share | 2 | 0.500 [" in result.output
+
+
+def test_summaries_of_several_recipes_give_one_row_each(tmp_path):
+    """--across-recipes: the table of docs/results.md, from the summaries --json wrote."""
+    measured = [{"gate": "tests", "what": "energy / the ACC's", "figure": 0.98}, {"gate": "safety", "what": "closest gap (m)", "figure": 2.5}]
+    paths = [str(_report(tmp_path, s, measures=measured if s else [])) for s in RMSE]
+    summary = tmp_path / "ice-gap-seeds.json"
+    assert CliRunner().invoke(main, ["seeds", *paths, "--json", str(summary)]).exit_code == 0
+    done = CliRunner().invoke(main, ["seeds", "--across-recipes", str(summary)])
+    assert done.exit_code == 0, done.output
+    head, rule, row = done.output.splitlines()
+    assert head.startswith("| model | seeds | pass every gate | tests: gap RMSE | tests: energy / ACC |") and rule.count("---") == head.count("|") - 1
+    cells = [c.strip() for c in row.split("|")]
+    assert cells[1:4] == ["ice-gap", "3", "2 of 3"] and cells[5] == "0.980 [0.980, 0.980]" and cells[6] == "–"
+    assert row.endswith("measures over 2 seeds")  # seed 0's report predates the measures
+    bad = CliRunner().invoke(main, ["seeds", "--across-recipes", paths[0]])  # a report, not a summary
+    assert bad.exit_code == 1 and "not a summary of `vacc seeds --json`" in bad.output and bad.output.count("\n") == 1
