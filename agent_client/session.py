@@ -20,6 +20,7 @@ is dropped and counted in ``session.endpoint.rejected``.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import threading
@@ -140,9 +141,6 @@ class Session:
         self._rtt = {"reset": _RoundTrip(retry_first_reset), "other": _RoundTrip(retry_initial)}
         self._closed = False
         self._heartbeat_seq = 0
-        # the last request refused with a recoverable error, and the error: a re-sent copy of
-        # that request may draw the same error again, after the caller has moved on
-        self._refused: tuple[dict[str, Any], dict[str, Any]] | None = None
         self._last_send = time.monotonic()  # [s] when a request last went out
         self._stop = threading.Event()
         self._keepalive: threading.Thread | None = None
@@ -308,13 +306,16 @@ class Session:
             FatalSessionError, ServerTimeout: the session is lost.
         """
         self._check_open()
-        episode, frame = self.episode, self.frame
-        msg = {"type": "step", "session": self.token, "episode": episode, "frame": frame, "action": float(action)}
+        episode, frame, u = self.episode, self.frame, float(action)
+        msg = {"type": "step", "session": self.token, "episode": episode, "frame": frame, "action": u}
+        # A bad action refused for this frame may be answered again (its request was re-sent)
+        # after the caller moved on: that refusal is not the answer to a valid action.
+        valid = math.isfinite(u) and -1.0 <= u <= 1.0
         obs = self._request(
             msg,
             lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame + 1,
             f"step of frame {frame}",
-            error_match=lambda e: e["frame"] in (frame, None) and e["episode"] in (episode, None),
+            error_match=lambda e: e["frame"] in (frame, None) and e["episode"] in (episode, None) and not (valid and e["code"] == m.ErrorCode.BAD_ACTION),
             extra=self._waits("seat_timeout"),
             # a platoon server sends the frame acted on again while it awaits this step: it was lost
             nudge=(lambda r: r["type"] == "obs" and r["episode"] == episode and r["frame"] == frame) if "seats" in (self.welcome or {}) else None,
@@ -393,14 +394,11 @@ class Session:
                     self.resends += 1
                     resent = True
                     continue
-                if reply["type"] == "error" and self._refused is not None and reply == self._refused[1] and msg != self._refused[0]:
-                    continue  # the answer to an earlier copy of a request already refused
                 if reply["type"] == "error" and error_match(reply):
                     text = f"server {self._where()}: {reply['name']}: {reply['detail']}"
                     if reply["fatal"]:
                         self.token = None  # the server holds no session for it any more
                         raise FatalSessionError(text, reply["code"])
-                    self._refused = (msg, reply)
                     raise SessionError(text, reply["code"])
                 continue  # stale or duplicate reply
             if got is not None and isinstance(got.error, VersionError) and got.addr == server and msg["type"] == "hello":

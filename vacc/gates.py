@@ -39,7 +39,7 @@ import numpy as np
 from agent_client.rl.checkpoint import file_sha256
 from energy import SETTLE_S
 from protocol.scenarios import TEST_TRAJECTORIES
-from vacc.host import CPU_PATHS, pinned_path, use_cpu_path
+from vacc.host import CPU_PATHS, describe, pinned_path, use_cpu_path
 from vacc.paths import MODELS_DEFAULT, models_dir
 from vacc.random_suite import ENERGY, random_jobs, score_random_run
 from vacc.recipes import Recipe, RecipeError, load_recipe
@@ -189,6 +189,7 @@ def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool =
         "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": file_sha256(checkpoint),
         "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
         "measures": [m._asdict() for m in measures], "cpu_path": pinned_path(),
+        "kernels": describe(with_gpu=False).get("kernels"),  # torch's name for them; the run workers fork from here
     }  # fmt: skip
     (out / "gates.json").write_text(json.dumps(report, indent=1) + "\n")
     return report

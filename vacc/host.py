@@ -57,6 +57,8 @@ def use_cpu_path(name: str) -> str:
     """
     import torch
 
+    for variable in {k for path in CPU_PATHS.values() for k in path}:  # "native" sets none: none left from a shell
+        os.environ.pop(variable, None)
     os.environ.update(CPU_PATHS[name])
     got = torch.backends.cpu.get_cpu_capability()
     want = CPU_PATHS[name].get("ATEN_CPU_CAPABILITY", "").upper()

@@ -235,7 +235,7 @@ def _reuse(stage: Stage, key: str, out: Path, source: Path, known: bool) -> dict
     return None
 
 
-def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool, what: str = "the next stage") -> None:
+def _pin_kernels(path: str, reexec: Callable[[dict[str, str]], None] | None, progress: bool, what: str = "the next stage runs") -> None:
     """Run ``what`` (the next train stage, or the gates) on :data:`~vacc.host.CPU_PATHS` ``[path]``: pinned in this process
     while torch has computed nothing, else in a fresh one (``reexec``: this command again, whose
     finished stages are kept), since torch fixes its kernels at its first computation.
@@ -380,7 +380,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     shutil.copyfile(out / last / f"{last}.pt", final)
     if STOP.is_set():
         raise KeyboardInterrupt
-    _pin_kernels(str(opts["cpu_path"]), reexec, progress, "the gates")  # the recipe's kernels, as `vacc gates` drives them
+    _pin_kernels(str(opts["cpu_path"]), reexec, progress, "the gates run")  # the recipe's kernels (or --cpu-path), as `vacc gates` drives them
     t0 = time.perf_counter()
     report = evaluate_gates(recipe, final, out / "gates", quick=smoke, jobs=jobs)
     stages = {name: {"kind": r["kind"], "wall_s": r.get("wall_s"), "host": r.get("host"), "reused": "reused_from" in r} for name, r in done.items()}
@@ -472,7 +472,7 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.option("--smoke", is_flag=True, help="Every stage for a few dozen steps, the gates in quick mode: checks the recipe runs.")
 @click.option("--jobs", default=2, show_default=True, type=click.IntRange(1, 64), help="Gate runs in parallel.")
 @click.option("--cpu-path", type=click.Choice(tuple(CPU_PATHS)), default=None,
-              help="Every train stage's CPU kernels: avx2 (rebuilds agree across x86-64 machines), avx512 (AVX-512's common level) or native (the widest, bit for bit only on the same CPU). Default: each stage's cpu_path, else the recipe's (avx2).")
+              help="Every train stage's CPU kernels, and the gates': avx2 (rebuilds agree across x86-64 machines), avx512 (AVX-512's common level) or native (the widest, bit for bit only on the same CPU). Default: each stage's cpu_path, else the recipe's (avx2); the gates on the recipe's.")
 @click.option("--keep-replay", is_flag=True, help="Keep each finished train stage's replay buffer (only a resume reads it; GBs a stage).")
 @click.option("--quiet", is_flag=True, help="No progress lines.")
 def reproduce_command(model_or_recipe: str, out: str, seed: int | None, reseed_from: str | None, reuse: str | None, servers: int, use_ray: bool,

@@ -164,8 +164,9 @@ def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) 
 
 
 def recipes_table(paths: Sequence[Path]) -> str:
-    """One Markdown row per summary (``vacc seeds --json``): seeds, pass share, the pooled tests'
-    gap RMSE and :data:`RECIPE_COLUMNS`, each as IQM [interval].
+    """One Markdown row per summary (``vacc seeds --json``): seeds (and how many hold the
+    measures, where fewer), pass share, the pooled tests' gap RMSE and :data:`RECIPE_COLUMNS`,
+    each as IQM [interval].
 
     Raises:
         click.ClickException: one line naming the file that is not such a summary.
@@ -175,13 +176,15 @@ def recipes_table(paths: Sequence[Path]) -> str:
     for path in paths:
         try:
             s = json.loads(path.read_text())
-            measures = {(m["gate"], m["what"]): m for m in s["measures"]}
-            cells = [s["recipe"], str(s["seeds"]), f"{s['passed_every_gate']} of {s['seeds']}", _interval(s["pooled_tests"], 2)]
-            cells += [_interval(measures.get(key), decimals, percent) for _, key, decimals, percent in RECIPE_COLUMNS]
-            fewer = min((m["n"] for m in measures.values()), default=0)
+            measures = {(m["gate"], m["what"]): m for m in s.get("measures", [])}  # none in a summary before gates measured
+            shown = [measures.get(key) for _, key, _, _ in RECIPE_COLUMNS]
+            measured = min((m["n"] for m in shown if m is not None), default=0)
+            seeds = str(s["seeds"]) + ("" if measured == s["seeds"] else f" ({measured} measured)")
+            cells = [s["recipe"], seeds, f"{s['passed_every_gate']} of {s['seeds']}", _interval(s["pooled_tests"], 2)]
+            cells += [_interval(m, decimals, percent) for m, (_, _, decimals, percent) in zip(shown, RECIPE_COLUMNS, strict=True)]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise click.ClickException(f"{path}: not a summary of `vacc seeds --json` ({exc})") from None
-        lines.append("| " + " | ".join(cells) + " |" + ("" if fewer == s["seeds"] else f" measures over {fewer} seeds"))
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -132,6 +132,15 @@ def test_a_late_copy_of_a_refused_step_does_not_refuse_the_next(server):
             s.endpoint.send(bad, s.server)
         time.sleep(0.3)  # their refusals now wait in the socket
         assert s.step(0.0)["frame"] == 1
+        # a refusal that does not depend on the action still answers another action at once
+        s.reset(seed=2, duration=0.1)
+        while not s.step(0.0)["truncated"]:
+            pass
+        for action in (0.0, -1.0, float("nan")):
+            t0 = time.monotonic()
+            with pytest.raises(SessionError, match="EPISODE_OVER|BAD_ACTION"):
+                s.step(action)
+            assert time.monotonic() - t0 < 1.0  # not a time-out
 
 
 def test_repeated_step_is_answered_from_cache_not_resimulated(server):

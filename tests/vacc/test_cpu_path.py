@@ -72,4 +72,5 @@ def test_vacc_gates_drives_its_runs_on_the_recipes_kernels(tmp_path):
     done = subprocess.run([sys.executable, "-m", "vacc", "gates", "ice-gap", "--quick", "--jobs", "1", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert done.returncode in (0, 1) and "on avx2 kernels" in done.stdout, done.stderr[-2000:]
-    assert json.loads((tmp_path / "gates.json").read_text())["cpu_path"] == "avx2"
+    report = json.loads((tmp_path / "gates.json").read_text())
+    assert report["cpu_path"] == "avx2" and report["kernels"] in ("AVX2", "DEFAULT")

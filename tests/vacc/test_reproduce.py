@@ -177,6 +177,8 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     recipe = load_recipe(name)
     # the gates drive on the recipe's kernels whatever the last stage's (ev-force's: AVX-512)
     assert report["cpu_path"] == recipe.cpu_path, report["cpu_path"]
+    if recipe.cpu_path == "avx2":
+        assert report["kernels"] != "AVX512"  # pinned (DEFAULT: a CPU without AVX2)
     for stage_dir in (p for p in folder.iterdir() if (p / "done.json").is_file()):
         done = json.loads((stage_dir / "done.json").read_text())
         assert done["stage"] == stage_dir.name and all(len(p["sha256"]) == 64 for p in done["parents"])
