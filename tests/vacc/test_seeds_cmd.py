@@ -87,7 +87,8 @@ def test_reports_that_named_the_closest_gap_in_the_check_group_with_the_new_ones
 def test_measures_no_gate_bounds_are_summarised_over_the_reports_that_hold_them(tmp_path):
     """A report from before gates measured (seed 0) is left out of a measure's row, and said."""
     share = {1: 0.4, 2: 0.6}
-    paths = [_report(tmp_path, 0)] + [_report(tmp_path, s, measures=[{"gate": "random", "what": "mean ISO jerk share", "figure": share[s]}]) for s in share]
+    start_gap = {"gate": "random", "what": "closest gap (m)", "figure": 27.0}  # once measured, the start gap: left out
+    paths = [_report(tmp_path, 0)] + [_report(tmp_path, s, measures=[{"gate": "random", "what": "mean ISO jerk share", "figure": share[s]}, start_gap]) for s in share]
     s = seed_summary([json.loads(p.read_text()) for p in paths])
     (row,) = s["measures"]
     assert (row["gate"], row["what"], row["n"]) == ("random", "mean ISO jerk share", 2)
