@@ -73,7 +73,8 @@ class Measure(NamedTuple):
 
 
 def _measures(gate: str, model: list[dict[str, Any]], acc: list[dict[str, Any]], energy_key: str) -> list[Measure]:
-    """The measures of one set of runs (each a dict of metrics): mean gap RMSE, mean ISO jerk share and, where the ACC drove the same runs, the energy against its."""
+    """The measures of one set of runs (each a dict of metrics): mean gap RMSE, mean ISO jerk
+    share and, where the ACC drove the same runs, the energy against its."""
     out = [
         Measure(gate, "mean gap RMSE (m)", float(np.mean([m["gap_rmse_55m_m"] for m in model]))),
         Measure(gate, "mean ISO jerk share", float(np.mean([m["iso_jerk_window_share"] for m in model]))),
