@@ -134,6 +134,14 @@ def _measure_rows(reports: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return [_summarised(row) for row in rows.values()]
 
 
+def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) -> str:
+    """``IQM [low, high]`` of a summarised row; ``–`` where there is none."""
+    if row is None or not math.isfinite(row["iqm"]):
+        return "–"
+    k = 100.0 if percent else 1.0
+    return f"{k * row['iqm']:.{decimals}f} [{k * row['low']:.{decimals}f}, {k * row['high']:.{decimals}f}]"
+
+
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as Markdown: the pass share, then one row per check."""
     ci = f"{CONFIDENCE:.0%}"
@@ -144,25 +152,17 @@ def summary_table(s: dict[str, Any]) -> str:
         "| --- | --- | --- | --- | --- |",
     ]
     for c in s["checks"]:
-        value = "n/a" if not math.isfinite(c["iqm"]) else f"{c['iqm']:.3f} [{c['low']:.3f}, {c['high']:.3f}]"
+        value = _interval(c, 3)
         if c["non_finite"]:
             value += f" ({c['non_finite']} non-finite left out)"
         lines.append(f"| {c['gate']} | {c['what']} | {c['passed']}/{c['n']} | {value} | {c['bound']:g} |")
     if (p := s["pooled_tests"]) is not None:
-        lines.append(f"| tests | {p['what']} | | {p['iqm']:.3f} [{p['low']:.3f}, {p['high']:.3f}] | |")
+        lines.append(f"| tests | {p['what']} | | {_interval(p, 3)} | |")
     if s.get("measures"):
         lines += ["", f"| where | measure (no gate) | seeds | IQM over seeds [{ci} CI] |", "| --- | --- | --- | --- |"]
         for m in s["measures"]:
-            value = "n/a" if not math.isfinite(m["iqm"]) else f"{m['iqm']:.3f} [{m['low']:.3f}, {m['high']:.3f}]"
-            lines.append(f"| {m['gate']} | {m['what']} | {m['n']} | {value} |")
+            lines.append(f"| {m['gate']} | {m['what']} | {m['n']} | {_interval(m, 3)} |")
     return "\n".join(lines)
-
-
-def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) -> str:
-    if row is None or not math.isfinite(row["iqm"]):
-        return "–"
-    k = 100.0 if percent else 1.0
-    return f"{k * row['iqm']:.{decimals}f} [{k * row['low']:.{decimals}f}, {k * row['high']:.{decimals}f}]"
 
 
 def recipes_table(paths: Sequence[Path]) -> str:
