@@ -3,8 +3,10 @@
 A recipe is an ordered list of stages, each with every option written out, and the
 checks (gates) its model must pass. Its layout::
 
-    [recipe]                 name, scenario ("ice" | "ev"), description, seed, and cpu_path
-                             (optional: "avx2", the default, or "native"; vacc.host.CPU_PATHS)
+    [recipe]                 name, scenario ("ice" | "ev"), description, seed (the replicate its
+                             stages' seeds are written for), and optional: cpu_path ("avx2", the
+                             default; vacc.host.CPU_PATHS) and reseed_from (the stage where
+                             `--seed N` replicates begin; default the first)
     [ablation]               note: which stages are candidates to drop (optional)
     [[stage]]                name, kind, note, known_weights and cpu_path (optional), then the kind's keys:
       train                  every Config field by name (``vacc train``'s options, snake_case;
@@ -77,7 +79,7 @@ TRAIN_REFS = ("init_from", "teacher_policy")  # the Config fields that name a ch
 OPTIONAL_KEYS = ("note", "known_weights", "cpu_path")
 COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
 OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
-RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path")
+RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path", "reseed_from")
 HOW_KEYS = ("cpu_path",)  # how the stages run, not what they are: not part of the digest
 GATE_KEYS: dict[str, tuple[str, ...]] = {
     "tests": ("seed", "max_gap_rmse_m"),
@@ -116,6 +118,7 @@ class Recipe(NamedTuple):
     gates: dict[str, dict[str, Any]]
     digest: str
     cpu_path: str = DEFAULT_CPU_PATH  # vacc.host.CPU_PATHS: the kernels its train stages run on
+    reseed_from: str | None = None  # the first stage that --seed N replicates (None: every stage)
 
     def stage(self, name: str) -> Stage:
         """The stage called ``name``.
@@ -175,11 +178,11 @@ def _bad(path: Path, where: str, message: str) -> RecipeError:
     return RecipeError(f"{path}: {where}: {message}")
 
 
-def _unknown(path: Path, where: str, table: dict[str, Any], allowed: tuple[str, ...]) -> None:
+def _unknown(path: Path, where: str, table: dict[str, Any], allowed: tuple[str, ...], optional: tuple[str, ...] = OPTIONAL_KEYS + HOW_KEYS) -> None:
     extra = sorted(set(table) - set(allowed))
     if extra:
         raise _bad(path, f"{where}.{extra[0]}", f"unknown key; expected {', '.join(allowed)}")
-    missing = [k for k in allowed if k not in table and k not in OPTIONAL_KEYS + HOW_KEYS]
+    missing = [k for k in allowed if k not in table and k not in optional]
     if missing:
         raise _bad(path, f"{where}.{missing[0]}", "missing (every option is written out)")
 
@@ -196,7 +199,7 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
     head = content.get("recipe")
     if not isinstance(head, dict):
         raise _bad(path, "[recipe]", "missing table")
-    _unknown(path, "recipe", head, RECIPE_KEYS)
+    _unknown(path, "recipe", head, RECIPE_KEYS, optional=("cpu_path", "reseed_from"))
     if head["scenario"] not in SCENARIOS:
         raise _bad(path, "recipe.scenario", f"{head['scenario']!r} is not one of {', '.join(SCENARIOS)}")
     if not isinstance(head["seed"], int) or head["seed"] < 0:
@@ -214,10 +217,13 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
     stages: list[Stage] = []
     for i, raw in enumerate(raw_stages):
         stages.append(_parse_stage(path, i, raw, [s.name for s in stages]))
+    reseed_from = head.get("reseed_from")
+    if reseed_from is not None and reseed_from not in [s.name for s in stages]:
+        raise _bad(path, "recipe.reseed_from", f"{reseed_from!r} is no stage of this recipe")
     gates = _parse_gates(path, content.get("gates", {}))
     inputs = {**content, "recipe": {k: v for k, v in head.items() if k not in HOW_KEYS},
               "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS + HOW_KEYS} for raw in raw_stages]}  # fmt: skip
-    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs), cpu_path)
+    return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs), cpu_path, reseed_from)
 
 
 def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:

@@ -14,8 +14,9 @@ their weights, written to ``DIR/identity.json`` and printed in one line (:func:`
 
 Seeds: ``--seed N`` moves every train stage's seed by :data:`SEED_STRIDE` times
 (N minus the recipe's seed): the recipe's own seed gives its written seeds, and every
-other N a distinct, equally written-out set. ``--reseed-from STAGE`` moves only the seeds of
-STAGE and the stages after it (a replicate of a chain's tail), and ``--reuse DIR`` copies the
+other N a distinct, equally written-out set. ``--reseed-from STAGE`` (by default the recipe's
+``reseed_from``, else the first stage) moves only the seeds of STAGE and the stages after it
+(a replicate of a chain's tail), and ``--reuse DIR`` copies the
 finished stages of another run that are the same stage: the same options, seed and parents
 (:func:`stage_key`, recorded in each ``done.json``; a record older than keys, where it made the
 stage's ``known_weights``). A ``done.json`` whose key differs from the stage's is refused, never run over.
@@ -81,8 +82,8 @@ def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
 
 def replicate_of(recipe: Recipe, stage: Stage, opts: dict[str, Any]) -> int:
     """The replicate a stage runs as: ``--seed``'s, or the recipe's own seed for a stage
-    before ``--reseed-from``'s."""
-    start = opts.get("reseed_from")  # absent: no --reseed-from (identity's callers pass the seed and --smoke only)
+    before ``--reseed-from``'s (else the recipe's ``reseed_from``)."""
+    start = opts.get("reseed_from") or recipe.reseed_from  # absent: the recipe's (identity's callers pass the seed and --smoke only)
     if start is not None and recipe.stages.index(stage) < recipe.stages.index(recipe.stage(start)):
         return recipe.seed
     return int(opts["seed"])
@@ -351,7 +352,13 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
     if reuse is not None and not reuse.is_dir():
         raise click.ClickException(f"--reuse {reuse}: no such folder")
     opts = {"seed": recipe.seed if seed is None else seed, "servers": servers, "ray": use_ray, "smoke": smoke, "progress": progress,
-            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path, "reseed_from": reseed_from, "reuse": reuse, "keep_replay": keep_replay}  # fmt: skip
+            "cpu_path": recipe.cpu_path if cpu_path is None else cpu_path, "reseed_from": reseed_from or recipe.reseed_from, "reuse": reuse,
+            "keep_replay": keep_replay}  # fmt: skip
+    for stage in recipe.stages:
+        written = stage.options.get("seed") if stage.kind == "train" else None
+        if isinstance(written, int) and shifted_seed(written, recipe, replicate_of(recipe, stage, opts)) < 0:
+            raise click.ClickException(f"--seed {opts['seed']}: stage {stage.name}'s seed would be {written} + {SEED_STRIDE:,} x ({opts['seed']} - {recipe.seed}), "
+                                       f"below 0 ({recipe.name}'s seeds are written for replicate {recipe.seed}): give --seed >= {recipe.seed} or a later --reseed-from")
     _check_folder(recipe, out, opts)
     done: dict[str, dict[str, Any]] = {}
     for i, stage in enumerate(recipe.stages, 1):
@@ -464,8 +471,8 @@ def _reexec_command(env: dict[str, str]) -> None:
 @click.command("reproduce")
 @click.argument("model_or_recipe")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder of the run: one subfolder per stage, the model, the gates.")
-@click.option("--seed", default=None, type=click.IntRange(min=0), help=f"Replicate N: every train stage's seed + {SEED_STRIDE:,} x (N - the recipe's seed). Default: the recipe's seed.")
-@click.option("--reseed-from", default=None, metavar="STAGE", help="With --seed: replicate only STAGE and the stages after it; those before keep the recipe's seeds (a chain's tail over seeds).")
+@click.option("--seed", default=None, type=click.IntRange(min=0), help=f"Replicate N: each train stage's seed + {SEED_STRIDE:,} x (N - the recipe's seed). Default: the recipe's seed (its written seeds).")
+@click.option("--reseed-from", default=None, metavar="STAGE", help="With --seed: replicate only STAGE and the stages after it; those before keep the recipe's seeds (a chain's tail over seeds). Default: the recipe's reseed_from, else every stage.")
 @click.option("--reuse", default=None, type=click.Path(file_okay=False), help="Another run's folder: copy each finished stage of it that is the same here (options, seed, parents) instead of running it.")
 @click.option("--servers", default=1, show_default=True, type=click.IntRange(min=1), help="Servers feeding each train stage that the K-stream trainer can run (others run one).")
 @click.option("--ray", "use_ray", is_flag=True, help="Run the train stages' servers and actors as Ray actors (vacc[ray]).")

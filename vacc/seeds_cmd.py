@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -44,16 +45,19 @@ RECIPE_COLUMNS = (  # --across-recipes: (header, (where, measure), decimals, in 
 LEGACY_DETAIL = re.compile(r" \(min gap [^)]*\)$")  # reports before Check.detail named the closest gap in "what"
 # measures reports of 2026-12-05 held that are not measures: the tests' and random leads' closest gap is their start gap
 LEGACY_MEASURES = {("tests", "closest gap (m)"), ("random", "closest gap (m)")}
+LEGACY_CPU_PATH = "native"  # reports before the gates pinned their kernels (2026-12-06) drove on the CPU's own
 
 
 def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
-    """The gate reports, checked to be of one recipe, full (not --quick) and of distinct models.
+    """The gate reports, checked to be of one recipe, full (not --quick) and of distinct models,
+    in the order of their paths: the bootstrap draws by position, so the same files in another
+    order give the same intervals.
 
     Raises:
         click.ClickException: one line naming the file and what is wrong.
     """
     reports = []
-    for path in paths:
+    for path in sorted(paths, key=str):
         try:
             report = json.loads(path.read_text())
             _ = (report["recipe"], report["recipe_digest"], report["sha256"])
@@ -120,8 +124,9 @@ def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
     if per_test and (est := _estimate(per_test)) is not None:
         pooled = {"what": "test-1..4 gap RMSE (m), stratified by trajectory", "iqm": est.value, "low": est.low, "high": est.high, "n": est.n}
     passed_all = sum(all(c["passed"] for c in r["checks"]) for r in reports)
+    kernels = Counter(r.get("cpu_path", LEGACY_CPU_PATH) for r in reports)
     return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled,
-            "measures": _measure_rows(reports)}  # fmt: skip
+            "measures": _measure_rows(reports), "cpu_paths": dict(sorted(kernels.items()))}  # fmt: skip
 
 
 def _measure_rows(reports: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -145,9 +150,12 @@ def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) 
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as Markdown: the pass share, then one row per check."""
     ci = f"{CONFIDENCE:.0%}"
-    lines = [
-        f"{s['recipe']}: {s['passed_every_gate']} of {s['seeds']} seeds pass every gate",
-        "",
+    lines = [f"{s['recipe']}: {s['passed_every_gate']} of {s['seeds']} seeds pass every gate", ""]
+    paths = s.get("cpu_paths", {})
+    if len(paths) > 1:  # a last-bit difference can move a decision: say so beside the figures
+        mixed = ", ".join(f"{n} on {p}" for p, n in paths.items())
+        lines[1:1] = [f"gated on mixed CPU kernels ({mixed}): a figure can differ in its last digits from one path to another", ""]
+    lines += [
         f"| gate | check | seeds passed | IQM over seeds [{ci} CI] | bound |",
         "| --- | --- | --- | --- | --- |",
     ]
@@ -182,6 +190,8 @@ def recipes_table(paths: Sequence[Path]) -> str:
             shown = [measures.get(key) for _, key, _, _ in RECIPE_COLUMNS]
             measured = min((m["n"] for m in shown if m is not None), default=0)
             seeds = str(s["seeds"]) + ("" if measured == s["seeds"] else f" ({measured} measured)")
+            if len(s.get("cpu_paths", {})) > 1:  # absent from summaries before 2026-12-06
+                seeds += " (" + ", ".join(f"{n} {p}" for p, n in s["cpu_paths"].items()) + " kernels)"
             cells = [s["recipe"], seeds, f"{s['passed_every_gate']} of {s['seeds']}", _interval(s["pooled_tests"], 2)]
             cells += [_interval(m, decimals, percent) for m, (_, _, decimals, percent) in zip(shown, RECIPE_COLUMNS, strict=True)]
         except (OSError, ValueError, KeyError, TypeError) as exc:

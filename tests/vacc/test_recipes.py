@@ -81,6 +81,16 @@ def test_the_cpu_path_is_checked_defaults_to_avx2_and_is_left_out_of_the_digest(
     _refuse(c, "stage 'ev-gap'.cpu_path", "a train stage's kernels")
 
 
+def test_reseed_from_names_a_stage_and_is_in_the_digest():
+    c = _content()
+    plain = parse_recipe(c, Path("recipes/x.toml"))
+    c["recipe"]["reseed_from"] = "mix"
+    tail = parse_recipe(c, Path("recipes/x.toml"))
+    assert (plain.reseed_from, tail.reseed_from) == (None, "mix") and plain.digest != tail.digest  # it says what --seed N makes
+    c["recipe"]["reseed_from"] = "nowhere"
+    _refuse(c, "recipe.reseed_from", "'nowhere' is no stage")
+
+
 def _content() -> dict:
     return tomllib.loads((RECIPES_DIR / "ev-force.toml").read_text())
 

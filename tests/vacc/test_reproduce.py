@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -67,6 +68,27 @@ def test_a_tail_replicate_keeps_the_recipe_seeds_before_its_first_stage(tmp_path
         reproduce(r, tmp_path / "x", seed=1, reseed_from="nope")
     with pytest.raises(click.ClickException, match="--reuse .*missing: no such folder"):
         reproduce(r, tmp_path / "x", reuse=tmp_path / "missing")
+    assert not (tmp_path / "x").exists()
+
+
+def test_the_recipes_reseed_from_sets_the_tail_and_no_seed_goes_below_zero(tmp_path):
+    """A recipe written for replicate 3 of its tail (as ice-gap's): --seed 0 replicates only the
+    tail, by default; a replicate that would take an earlier stage's seed below 0 is refused."""
+    import click
+
+    from vacc.recipes import load_recipe, parse_recipe
+    from vacc.reproduce import replicate_of, reproduce
+
+    content = tomllib.loads(load_recipe("ev-force").path.read_text())
+    content["recipe"].update(seed=3, reseed_from="ev-force")
+    content["stage"][2]["seed"] += 3 * SEED_STRIDE
+    r = parse_recipe(content, tmp_path / "ev-force.toml")
+    default = {"seed": 0, "smoke": False, "reseed_from": None}
+    assert [replicate_of(r, s, default) for s in r.stages] == [3, 3, 0, 0]
+    assert [replicate_of(r, s, {**default, "reseed_from": "mix"}) for s in r.stages] == [3, 3, 3, 0]
+    assert shifted_seed(r.stages[2].options["seed"], r, 0) == load_recipe("ev-force").stage("ev-force").options["seed"]
+    with pytest.raises(click.ClickException, match=r"--seed 0: stage gap-scratch's seed would be .* below 0 .*give --seed >= 3"):
+        reproduce(r, tmp_path / "x", seed=0, reseed_from="gap-scratch")
     assert not (tmp_path / "x").exists()
 
 

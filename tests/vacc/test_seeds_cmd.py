@@ -112,3 +112,28 @@ def test_summaries_of_several_recipes_give_one_row_each(tmp_path):
     assert cells[1:4] == ["ice-gap", "3 (2 measured)", "2 of 3"] and cells[5] == "0.980 [0.980, 0.980]" and cells[6] == "–"
     bad = CliRunner().invoke(main, ["seeds", "--across-recipes", paths[0]])  # a report, not a summary
     assert bad.exit_code == 1 and "not a summary of `vacc seeds --json`" in bad.output and bad.output.count("\n") == 1
+
+
+def test_reports_gated_on_different_kernels_are_said_to_be(tmp_path):
+    """A report before the gates pinned their kernels drove on the CPU's own; one run beside
+    others on AVX2 can differ in its last digits, so the summary and the row say so."""
+    paths = [str(_report(tmp_path, s, **({"cpu_path": "avx2"} if s else {}))) for s in RMSE]
+    summary = tmp_path / "s.json"
+    done = CliRunner().invoke(main, ["seeds", *paths, "--json", str(summary)])
+    assert done.exit_code == 0 and "gated on mixed CPU kernels (2 on avx2, 1 on native)" in done.output, done.output
+    assert json.loads(summary.read_text())["cpu_paths"] == {"avx2": 2, "native": 1}
+    row = CliRunner().invoke(main, ["seeds", "--across-recipes", str(summary)]).output.splitlines()[2]
+    assert "| 3 (0 measured) (2 avx2, 1 native kernels) |" in row
+    one = CliRunner().invoke(main, ["seeds", *paths[1:]])
+    assert one.exit_code == 0 and "mixed" not in one.output
+
+
+def test_the_same_reports_in_another_order_give_the_same_summary(tmp_path):
+    rng = np.random.default_rng(3)
+    paths = []
+    for seed in range(8):  # spread figures: the bootstrap draws by position
+        checks = [{"gate": "tests", "what": f"test-{i + 1} gap RMSE (m)", "figure": float(x), "bound": 3.4, "passed": bool(x <= 3.4)} for i, x in enumerate(rng.uniform(2, 5, 4))]
+        paths.append(str(_report(tmp_path, seed % 3, checks=checks, sha256=f"{seed:064d}").rename(tmp_path / f"r{seed}.json")))
+    a = CliRunner().invoke(main, ["seeds", *paths])
+    b = CliRunner().invoke(main, ["seeds", *reversed(paths)])
+    assert a.exit_code == b.exit_code == 0 and a.output == b.output
