@@ -40,6 +40,7 @@ from agent_client.rl.checkpoint import file_sha256
 from energy import SETTLE_S
 from protocol.scenarios import TEST_TRAJECTORIES
 from vacc.host import CPU_PATHS, describe, pinned_path, use_cpu_path
+from vacc.measures import CLOSEST_GAP, ENERGY_RATIO, ISO_JERK_SHARE, MEAN_GAP_RMSE
 from vacc.paths import MODELS_DEFAULT, models_dir
 from vacc.random_suite import ENERGY, random_jobs, score_random_run
 from vacc.recipes import Recipe, RecipeError, load_recipe
@@ -76,12 +77,12 @@ def _measures(gate: str, model: list[dict[str, Any]], acc: list[dict[str, Any]],
     """The measures of one set of runs (each a dict of metrics): mean gap RMSE, mean ISO jerk
     share and, where the ACC drove the same runs, the energy against its."""
     out = [
-        Measure(gate, "mean gap RMSE (m)", float(np.mean([m["gap_rmse_55m_m"] for m in model]))),
-        Measure(gate, "mean ISO jerk share", float(np.mean([m["iso_jerk_window_share"] for m in model]))),
+        Measure(gate, MEAN_GAP_RMSE, float(np.mean([m["gap_rmse_55m_m"] for m in model]))),
+        Measure(gate, ISO_JERK_SHARE, float(np.mean([m["iso_jerk_window_share"] for m in model]))),
     ]
     if acc:
         ratio = float(np.mean([m[energy_key] for m in model]) / np.mean([m[energy_key] for m in acc]))
-        out.append(Measure(gate, "energy / the ACC's", ratio))
+        out.append(Measure(gate, ENERGY_RATIO, ratio))
     return out
 
 
@@ -145,7 +146,7 @@ def _safety_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int
         passed, low = sum(s["passed"] for s in scores), min(s["min_gap_m"] for s in scores)
         closest = min(closest, low)
         checks.append(Check("safety", f"{scenario}: runs passed", float(passed), float(len(scores)), passed == len(scores), f"min gap {low:.1f} m"))
-    return checks, [Measure("safety", "closest gap (m)", float(closest))]
+    return checks, [Measure("safety", CLOSEST_GAP, float(closest))]
 
 
 def _random_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) -> tuple[list[Check], list[Measure]]:

@@ -55,7 +55,7 @@ from vacc.runs import parse_seeds
 
 __all__ = [
     "RecipeError", "Stage", "Recipe", "STAGE_KINDS", "STAGE_REF", "NONE", "RECIPES_DIR", "GATE_KEYS",
-    "load_recipe", "parse_recipe", "recipe_path", "digest", "stage_config", "stage_refs",
+    "load_recipe", "parse_recipe", "recipe_path", "digest", "stage_config", "stage_refs", "keyed_options", "LATE_OPTIONS",
 ]  # fmt: skip
 
 RECIPES_DIR = Path(__file__).resolve().parent.parent / "recipes"
@@ -81,6 +81,10 @@ COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
 OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
 RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path", "reseed_from")
 HOW_KEYS = ("cpu_path",)  # how the stages run, not what they are: not part of the digest
+LATE_OPTIONS: dict[str, Any] = {"critic_warmup": 0}
+"""Train options added after recipes were first digested, at the value that changes nothing:
+left out of a recipe's digest and a stage's key (:func:`keyed_options`), so that writing them
+into every recipe leaves every run folder and ``--reuse`` valid."""
 GATE_KEYS: dict[str, tuple[str, ...]] = {
     "tests": ("seed", "max_gap_rmse_m"),
     "safety": ("seeds", "scenarios"),
@@ -222,7 +226,7 @@ def parse_recipe(content: dict[str, Any], path: Path) -> Recipe:
         raise _bad(path, "recipe.reseed_from", f"{reseed_from!r} is no stage of this recipe")
     gates = _parse_gates(path, content.get("gates", {}))
     inputs = {**content, "recipe": {k: v for k, v in head.items() if k not in HOW_KEYS},
-              "stage": [{k: v for k, v in raw.items() if k not in OUTCOME_KEYS + HOW_KEYS} for raw in raw_stages]}  # fmt: skip
+              "stage": [keyed_options({k: v for k, v in raw.items() if k not in OUTCOME_KEYS + HOW_KEYS}) for raw in raw_stages]}  # fmt: skip
     return Recipe(path, head["name"], head["scenario"], head["description"], head["seed"], tuple(stages), gates, digest(inputs), cpu_path, reseed_from)
 
 
@@ -257,6 +261,11 @@ def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
     else:
         _check_surgery(path, where, stage)
     return stage
+
+
+def keyed_options(options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` without the :data:`LATE_OPTIONS` at their inert values: what a digest or a key hashes."""
+    return {k: v for k, v in options.items() if not (k in LATE_OPTIONS and v == LATE_OPTIONS[k])}
 
 
 def stage_ref_keys(kind: str) -> tuple[str, ...]:

@@ -54,7 +54,15 @@ from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
 from vacc.host import CPU_PATHS, PINNED, describe, label, pinned_path, use_cpu_path
-from vacc.recipes import Recipe, RecipeError, Stage, load_recipe, stage_config, stage_refs
+from vacc.recipes import (
+    Recipe,
+    RecipeError,
+    Stage,
+    keyed_options,
+    load_recipe,
+    stage_config,
+    stage_refs,
+)
 
 __all__ = ["SEED_STRIDE", "SMOKE", "file_sha256", "weights_sha256", "shifted_seed", "smoke_config", "stamp_lineage", "run_stage", "reproduce", "reproduce_command",
            "timing_line", "duration", "identity", "identity_line"]
@@ -94,7 +102,7 @@ def stage_key(recipe: Recipe, stage: Stage, opts: dict[str, Any], parents: list[
     stage's), --smoke and its parents' weights (SHA-256), hashed. Not its name, note or
     kernels, nor the recipe's other stages, so the same stage in another recipe has the same key."""
     replicate = replicate_of(recipe, stage, opts) if stage.kind == "train" else None
-    return digest({"kind": stage.kind, "options": stage.options, "seed_shift": None if replicate is None else replicate - recipe.seed,
+    return digest({"kind": stage.kind, "options": keyed_options(stage.options), "seed_shift": None if replicate is None else replicate - recipe.seed,
                    "smoke": bool(opts["smoke"]), "parents": parents})  # fmt: skip
 
 

@@ -29,22 +29,22 @@ from typing import Any
 
 import click
 
+from vacc.measures import CLOSEST_GAP, ENERGY_RATIO, ISO_JERK_SHARE, MEAN_GAP_RMSE
 from vacc.stats import CONFIDENCE, Estimate, bootstrap_ci, iqm
 
 __all__ = ["read_reports", "seed_summary", "summary_table", "recipes_table", "seeds"]
 
 POOLED_TESTS = ("tests", "gap RMSE (m)")  # the per-trajectory checks pooled in one row
-ENERGY = "energy / the ACC's"
 RECIPE_COLUMNS = (  # --across-recipes: (header, (where, measure), decimals, in %)
-    ("tests: energy / ACC", ("tests", ENERGY), 3, False),
-    ("tests: ISO jerk %", ("tests", "mean ISO jerk share"), 1, True),
-    ("random: mean gap RMSE", ("random", "mean gap RMSE (m)"), 2, False),
-    ("random: energy / ACC", ("random", ENERGY), 3, False),
-    ("safety: closest gap", ("safety", "closest gap (m)"), 1, False),
+    ("tests: energy / ACC", ("tests", ENERGY_RATIO), 3, False),
+    ("tests: ISO jerk %", ("tests", ISO_JERK_SHARE), 1, True),
+    ("random: mean gap RMSE", ("random", MEAN_GAP_RMSE), 2, False),
+    ("random: energy / ACC", ("random", ENERGY_RATIO), 3, False),
+    ("safety: closest gap", ("safety", CLOSEST_GAP), 1, False),
 )
 LEGACY_DETAIL = re.compile(r" \(min gap [^)]*\)$")  # reports before Check.detail named the closest gap in "what"
 # measures reports of 2026-12-05 held that are not measures: the tests' and random leads' closest gap is their start gap
-LEGACY_MEASURES = {("tests", "closest gap (m)"), ("random", "closest gap (m)")}
+LEGACY_MEASURES = {("tests", CLOSEST_GAP), ("random", CLOSEST_GAP)}
 LEGACY_CPU_PATH = "native"  # reports before the gates pinned their kernels (2026-12-06) drove on the CPU's own
 
 

@@ -225,24 +225,26 @@ class ACLosses(NamedTuple):
 
 
 def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, b: Any, cfg: Any, std: float,
-           device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+           device: torch.device, log: bool, actor: bool = True) -> ACLosses | None:  # fmt: skip
     """One DrQ-v2 step on a replay batch: the critic's n-step clipped double-Q loss and the
     actor's -min(Q1, Q2), summed into one backward and one Adam step (Adam is per tensor, so
     this is two optimisers at the same rate), then the critic's target moves ``critic_tau``.
 
     The actor's loss reads the critic's weights detached and the features detached, so its
     gradient reaches the actor only, and the critic's reaches the critic and the convolutions.
+    Without ``actor`` (the critic's warm-up, ``critic_warmup``) the actor's loss is left out:
+    the actor stays as cloned while the critic learns the values of what it does.
     """
     obs = random_shift(scale_frames(b.frames.to(device)), cfg.shift_pad)  # [B, S, H, W]
     next_obs = random_shift(scale_frames(b.next_frames.to(device)), cfg.shift_pad)
     z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
-    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log)
+    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor)
 
 
 def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, optimizer: torch.optim.Optimizer, seq: Any,
-                     cfg: Any, std: float, device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+                     cfg: Any, std: float, device: torch.device, log: bool, actor: bool = True) -> ACLosses | None:  # fmt: skip
     """:func:`update` on replayed sequences (:class:`~agent_client.rl.replay.SequenceSamples`)
     for the recurrent trunk: each sequence shifted as one, unrolled from its stored state, and
     the one-step losses taken on its steps past the burn-in (R2D2)."""
@@ -250,11 +252,11 @@ def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, op
     frames = random_shift(frames.flatten(1, 2), cfg.shift_pad).view(frames.shape)  # one shift for a whole sequence
     h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
     keep = seq.train.to(device)  # [B, L]
-    return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log)
+    return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log, actor)
 
 
 def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, z: torch.Tensor, next_z: torch.Tensor,
-             b: Any, cfg: Any, std: float, device: torch.device, log: bool) -> ACLosses | None:  # fmt: skip
+             b: Any, cfg: Any, std: float, device: torch.device, log: bool, actor: bool) -> ACLosses | None:  # fmt: skip
     """The losses and the step of :func:`update` on features ``z`` (with the graph) and ``next_z`` (without)."""
     with torch.no_grad():
         noise = (torch.randn(len(next_z), device=device) * std).clamp(-cfg.noise_clip, cfg.noise_clip)  # [B]
@@ -270,7 +272,7 @@ def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optim
     pq1, pq2 = _critic_with(net, frozen, zd)
     actor_loss = -torch.min(pq1, pq2).mean()
     optimizer.zero_grad()
-    (critic_loss + actor_loss).backward()
+    (critic_loss + actor_loss if actor else critic_loss).backward()
     nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
     optimizer.step()
     soft_update(net, target, cfg.critic_tau)

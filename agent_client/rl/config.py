@@ -316,6 +316,8 @@ class ActorCriticSettings:
     """(continuous) [px] largest random image shift (0: none)."""
     bc_steps: int = 0
     """(continuous) steps cloning --init-from into the actor."""
+    critic_warmup: int = 0
+    """(continuous) first updates in which only the critic learns."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -510,7 +512,7 @@ def check_actor_critic(cfg: ActorCriticSettings) -> None:
         raise _bad("critic_tau", f"must be in (0, 1], got {cfg.critic_tau}")
     if not 0 <= cfg.shift_pad <= 16:
         raise _bad("shift_pad", f"must be in 0..16 px, got {cfg.shift_pad}")
-    _at_least(cfg, ("bc_steps",), 0)
+    _at_least(cfg, ("bc_steps", "critic_warmup"), 0)
 
 
 def check_across_sections(cfg: Config) -> None:
@@ -544,6 +546,8 @@ def check_continuous(cfg: Config) -> None:
     if not is_continuous(cfg.action):
         if cfg.bc_steps > 0:
             raise _bad("bc_steps", "clones a DQN into the actor-critic's actor: it needs action 'continuous'")
+        if cfg.critic_warmup > 0:
+            raise _bad("critic_warmup", "holds the actor-critic's actor while its critic learns: it needs action 'continuous'")
         return
     for field, used, what in (
         ("teacher", cfg.teacher != "none", "a teacher's labels (clone a student with init_from and bc_steps)"),

@@ -420,9 +420,10 @@ class Learner:
 
     def _update_actor_critic(self, b: ReplaySamples | SequenceSamples, log_step: int | None) -> UpdateLosses | None:
         """One DrQ-v2 step (:func:`agent_client.rl.actor_critic.update`, or ``update_sequences``
-        for the recurrent trunk), its noise at ``_std``."""
+        for the recurrent trunk), its noise at ``_std``; the actor learns from update ``critic_warmup`` on."""
         step = ac.update_sequences if isinstance(b, SequenceSamples) else ac.update
-        losses = step(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None)  # type: ignore[arg-type]
+        actor = self.updates >= self.cfg.critic_warmup
+        losses = step(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None, actor)  # type: ignore[arg-type]
         self.updates += 1
         return None if losses is None else UpdateLosses(losses.critic, losses.q_values, {ac.ACTOR_NAME: losses.actor})
 

@@ -77,6 +77,21 @@ def test_update_trains_the_critic_through_the_trunk_and_the_actor_alone():
     assert t_moved and all(k.startswith(("critic_trunk", "q1", "q2")) for k in t_moved)
 
 
+def test_in_the_critics_warmup_the_actor_does_not_move_and_the_critic_does():
+    torch.manual_seed(0)
+    net = ac.ActorCritic.of(CONT)
+    target = ac.target_of(net)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
+    for _ in range(3):
+        ac.update(net, target, opt, b, CONT, 0.2, torch.device("cpu"), log=False, actor=False)
+    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    assert {"conv.0.weight", "critic_trunk.0.weight", "q1.0.weight"} <= moved and not moved & {"fc.0.weight", "fc.2.weight", "fc.2.bias"}
+    ac.update(net, target, opt, b, CONT, 0.2, torch.device("cpu"), log=False)  # after it: the actor learns
+    assert not torch.equal(net.state_dict()["fc.2.weight"], before["fc.2.weight"])
+
+
 def test_the_actors_loss_reaches_the_actor_only():
     torch.manual_seed(0)
     net = ac.ActorCritic.of(CONT)
@@ -134,7 +149,7 @@ def test_behaviour_cloning_learns_the_students_decision_on_a_tiny_set():
 @pytest.mark.parametrize(
     ("changes", "field"),
     [({"teacher": "acc"}, "teacher"), ({"aux_gap": 1.0}, "aux_gap"), ({"bc_steps": 5}, "bc_steps"), ({"critic_tau": 0.0}, "critic_tau"),
-     ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end")],
+     ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup")],
 )  # fmt: skip
 def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     with pytest.raises(ConfigError) as err:
@@ -142,6 +157,8 @@ def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     assert err.value.field == field
     with pytest.raises(ConfigError, match="continuous"):
         Config(bc_steps=3, init_from="x.pt")  # a DQN run clones nothing
+    with pytest.raises(ConfigError, match="critic_warmup.*continuous"):
+        Config(critic_warmup=100)  # nor has it an actor to hold
 
 
 @pytest.mark.slow
