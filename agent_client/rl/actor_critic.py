@@ -45,7 +45,7 @@ from agent_client.rl.network import (
 from agent_client.rl.replay import flat_transitions
 
 __all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
-           "network_of", "policy_of", "recurrent_start", "noise_std", "soft_update", "target_of"]
+           "network_of", "policy_of", "recurrent_start", "noise_std", "soft_update", "target_of", "noisy", "student_target"]
 
 CRITIC_NAME = "losses/critic"
 ACTOR_NAME = "losses/actor"
@@ -208,9 +208,18 @@ def noise_std(cfg: Any, step: int) -> float:
 def explore(policy: ActorPolicy, obs: dict[str, Any], std: float, rng: np.random.Generator) -> tuple[Decision, float]:
     """The actor's target plus Gaussian noise of ``std`` from the acting generator, clipped
     to [-1, 1] and rounded to float32 (what the env applies); the decision and the action to store."""
-    mu = policy.target(obs)
+    return noisy(policy.target(obs), std, rng)
+
+
+def noisy(mu: float, std: float, rng: np.random.Generator) -> tuple[Decision, float]:
+    """The target ``mu`` plus Gaussian noise of ``std`` (:func:`explore`): the decision and the action to store."""
     a = float(np.float32(min(1.0, max(-1.0, mu + std * float(rng.standard_normal())))))
     return Decision(0, None, a), a
+
+
+def student_target(student: nn.Module, student_cfg: Any, obs: dict[str, Any]) -> float:
+    """A DQN student's decision as a force target (:func:`student_targets`) for one observation."""
+    return float(student_targets(student, student_cfg, *batch_of_one(student, obs["frames"], obs["speeds"], obs.get("controls")))[0])  # type: ignore[arg-type]
 
 
 # ------------------------------------------------------------------------------ update

@@ -238,8 +238,10 @@ class Learner:
         else:
             self._init_from()
             self.lineage = self._new_lineage()
-        # (actor-critic, init_from a DQN) the clone of its decision runs before the first update
+        # (actor-critic, init_from a DQN) the clone of its decision runs before the first update;
+        # the student drives until then, so the clone and the critic learn on its own states
         self._bc_pending = self.continuous and cfg.bc_steps > 0 and self.updates == 0
+        self.student = load_policy(str(cfg.init_from), self.device) if self.continuous and cfg.bc_steps > 0 else None
         if self.parallel:
             if not resume:
                 self.acting.load_state_dict(self.q.state_dict())
@@ -430,7 +432,8 @@ class Learner:
     def _clone_student(self, memory: ReplayMemory | StreamReplay, step: int) -> None:
         """The behaviour-cloning warm start: ``bc_steps`` steps of the actor on the
         ``init_from`` student's decision on replayed frames; the mean error logged at ``step``."""
-        student, student_cfg = load_policy(str(self.cfg.init_from), self.device)
+        assert self.student is not None  # bc_steps > 0: loaded with the learner
+        student, student_cfg = self.student
 
         def batch() -> ReplaySamples | SequenceSamples:
             return self._sample(memory) if self.q.recurrent else memory.sample(self.cfg.batch_size, self.rng)

@@ -32,7 +32,7 @@ import numpy as np
 from agent_client.actions import is_continuous, make_action_type
 from agent_client.errors import ResumeError
 from agent_client.launcher import Road
-from agent_client.rl.actor_critic import explore, noise_std
+from agent_client.rl.actor_critic import explore, noise_std, noisy, student_target
 from agent_client.rl.config import Config
 from agent_client.rl.learner import STOP, Learner, PolicyTeacher
 from agent_client.rl.network import Decision, linear_schedule
@@ -249,7 +249,9 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     """The decision to take and the action to store.
 
     Actor-critic (a continuous action): the actor's target plus the scheduled Gaussian
-    noise (:func:`agent_client.rl.actor_critic.explore`), stored as taken.
+    noise (:func:`agent_client.rl.actor_critic.explore`), stored as taken; with ``bc_steps``,
+    the student's target until learning starts, so that the clone learns its decision on the
+    states it drives into and the critic's first data are its own.
     Double DQN: ε-greedy, stored as taken. With a teacher (DAgger): the teacher's label is
     stored whoever drives; the teacher drives a share β of the steps, falling from 1 to 0
     over ``teacher_steps``, and the ε-greedy student the rest, so that it learns the
@@ -257,6 +259,10 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     """
     rng = learner.acting_rng
     if learner.continuous:
+        if learner.student is not None and step < cfg.learning_starts:
+            if learner.q.recurrent:
+                learner.acting_policy.target(obs)  # its state steps on every observation, whoever drives
+            return noisy(student_target(*learner.student, obs), noise_std(cfg, step), rng)
         return explore(learner.acting_policy, obs, noise_std(cfg, step), rng)
     # a recurrent student's state steps on every observation, whoever drives (it draws nothing)
     own = learner.act(obs) if learner.q.recurrent else None

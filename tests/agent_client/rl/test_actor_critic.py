@@ -200,3 +200,22 @@ def test_init_from_a_dqn_copies_its_trunk_and_clones_its_decision(tmp_path):
     assert isinstance(net, ac.ActorCritic) and summary["updates"] > 0
     bc = [float(r["value"]) for r in csv.DictReader(open(tmp_path / "run" / "scalars.csv")) if r["name"] == ac.BC_NAME]
     assert len(bc) == 1 and np.isfinite(bc[0])
+
+
+@pytest.mark.slow
+def test_until_learning_starts_the_student_drives_so_the_clone_sees_its_states(tmp_path):
+    """With --bc-steps, every transition before the first update is the student's decision
+    (no noise here), so the clone learns it on the states the student drives into."""
+    student_cfg = Config(action="ramp-fine", conv_channels=(4, 8, 8), hidden=32)
+    torch.manual_seed(5)
+    student = QNetwork.of(student_cfg)
+    save_policy(student, student_cfg, tmp_path / "student.pt")
+    cfg = Config(**{**CONT.__dict__, "init_from": str(tmp_path / "student.pt"), "bc_steps": 5, "total_steps": 30, "learning_starts": 30,
+                    "noise_start": 0.0, "noise_end": 0.0, "checkpoint_every": 30})  # fmt: skip
+    train(cfg, tmp_path / "run", progress=False)
+    memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, 2, n_controls=2, continuous=True)
+    memory.load(next((tmp_path / "run").glob("replay*.npz")))
+    b = memory.sample(16, np.random.default_rng(0))
+    want = ac.student_targets(student, student_cfg, b.frames, b.speeds, b.controls)
+    torch.testing.assert_close(b.actions, want.to(torch.float32), rtol=0, atol=1e-6)
+    assert want.std() > 0  # the student decides, not a constant
