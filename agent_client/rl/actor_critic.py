@@ -241,12 +241,14 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
 
     The actor's loss reads the critic's weights detached and the features detached, so its
     gradient reaches the actor only, and the critic's reaches the critic and the convolutions.
-    Without ``actor`` (the critic's warm-up, ``critic_warmup``) the actor's loss is left out:
-    the actor stays as cloned while the critic learns the values of what it does.
+    Without ``actor`` (the critic's warm-up, ``critic_warmup``) the actor's loss is left out
+    and the convolutions the actor reads stay too: the actor drives as cloned while the
+    critic's own layers learn the values of what it does.
     """
     obs = random_shift(scale_frames(b.frames.to(device)), cfg.shift_pad)  # [B, S, H, W]
     next_obs = random_shift(scale_frames(b.next_frames.to(device)), cfg.shift_pad)
-    z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
+    with torch.set_grad_enabled(actor):
+        z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
     return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor)
@@ -259,7 +261,8 @@ def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, op
     the one-step losses taken on its steps past the burn-in (R2D2)."""
     frames = scale_frames(seq.frames.to(device))  # [B, L + 1, S, H, W]
     frames = random_shift(frames.flatten(1, 2), cfg.shift_pad).view(frames.shape)  # one shift for a whole sequence
-    h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
+    with torch.set_grad_enabled(actor):  # the warm-up keeps the trunk the actor reads
+        h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
     keep = seq.train.to(device)  # [B, L]
     return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log, actor)
 

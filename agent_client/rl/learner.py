@@ -230,6 +230,9 @@ class Learner:
         self.saved: dict[str, Any] = {}
         self.replay_names: list[str] = []
         self.lineage: Lineage | None = None
+        # (actor-critic, --bc-steps) the student drives until learning starts and is cloned then;
+        # loaded before a resume restores the generators, as building a network draws from torch's
+        self.student = load_policy(str(cfg.init_from), self.device) if self.continuous and cfg.bc_steps > 0 else None
         if resume:  # every check that can fail, before anything in the run folder is written
             self._resume()
             if load_replay is not None:
@@ -238,10 +241,8 @@ class Learner:
         else:
             self._init_from()
             self.lineage = self._new_lineage()
-        # (actor-critic, init_from a DQN) the clone of its decision runs before the first update;
-        # the student drives until then, so the clone and the critic learn on its own states
+        # (actor-critic, init_from a DQN) the clone of its decision runs before the first update
         self._bc_pending = self.continuous and cfg.bc_steps > 0 and self.updates == 0
-        self.student = load_policy(str(cfg.init_from), self.device) if self.continuous and cfg.bc_steps > 0 else None
         if self.parallel:
             if not resume:
                 self.acting.load_state_dict(self.q.state_dict())
