@@ -59,8 +59,10 @@ def test_the_table_shows_each_model_and_a_recipe_not_yet_written(tmp_path):
     assert done.exit_code == 0, done.output
     row = next(line for line in done.output.splitlines() if line.startswith("ice-gap "))
     for cell in ("ice", "levels", "2.78 MB", _sha256(MODELS / "ice-gap.pt")[:12], " ok ", "recipes/ice-gap.toml (not written yet)",
-                 "2.601 (2.52–2.68)", "329.7 g/mi, ACC 68.1 (+384.1%)"):  # fmt: skip
+                 "2.777 (2.94/2.77/2.58/2.82)", "224.2 g/mi, ACC 68.1 (+229.2%)"):  # fmt: skip
         assert cell in row, cell
+    force = next(line for line in done.output.splitlines() if line.startswith("ice-force "))
+    assert "4.729 (4.47–4.86)" in force  # a range where the index has no figure per trajectory
     (tmp_path / "recipes").mkdir()
     (tmp_path / "recipes" / "ice-gap.toml").write_text("")
     row = next(line for line in CliRunner().invoke(main, ["models", "--models", str(tmp_path / "models")]).output.splitlines() if line.startswith("ice-gap "))
