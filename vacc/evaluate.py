@@ -169,24 +169,28 @@ def _suite_methods(methods: str, suite: str) -> list[str]:
     return chosen
 
 
-def _suite_drivers(models: Path, vehicles: Iterable[str], methods: str | None, suite: str) -> tuple[bool, dict[str, str]]:
-    """Whether the ACC drives, and the models of ``vehicles`` in ``models`` that do (name -> path).
+def _suite_drivers(models: Path, vehicles: Iterable[str], methods: str | None, suite: str,
+                   extra: dict[str, str] | None = None) -> tuple[bool, dict[str, str]]:  # fmt: skip
+    """Whether the ACC drives, and the models that do (name -> path): those of ``vehicles``
+    in ``models``, then each ``extra`` checkpoint (--model), whatever --methods says.
 
     Without --methods: the ACC and every model. With it: the ACC and the models of the
     chosen kinds only (ev-eco.pt and ev-eco-b.pt are both ddqn-eco).
 
     Raises:
-        click.BadParameter: --methods names a method the suite does not drive, or leaves nothing to drive.
+        click.BadParameter: --methods names a method the suite does not drive, or leaves
+            nothing to drive; a --model name is also a model's in ``models``.
     """
-    vehicles = tuple(vehicles)
+    vehicles, extra = tuple(vehicles), extra or {}
     found = {p.stem: str(p) for p in sorted(models.glob("*.pt")) if p.stem.split("-")[0] in vehicles}
-    if methods is None:
-        return True, found
-    chosen = _suite_methods(methods, suite)
-    found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
-    if "acc" not in chosen and not found:
-        raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
-    return "acc" in chosen, found
+    chosen = _suite_methods(methods, suite) if methods is not None else None
+    if chosen is not None:
+        found = {stem: path for stem, path in found.items() if "ddqn-" + (stem.split("-") + [""])[1] in chosen}
+        if "acc" not in chosen and not found and not extra:
+            raise click.BadParameter(f"no model of {', '.join(chosen)} for {', '.join(vehicles)} in {models}", param_hint="--methods")
+    if taken := sorted(found.keys() & extra.keys()):
+        raise click.BadParameter(f"--model {taken[0]}=... names {models / (taken[0] + '.pt')} too: give it another NAME", param_hint="--model")
+    return chosen is None or "acc" in chosen, found | extra
 
 
 def _lead_scenarios(names: str | None, suite: str) -> tuple[str, ...]:
@@ -323,32 +327,35 @@ def paper_suite(
 def safety_suite(
     out: Path, vehicles: tuple[str, ...], methods: str | None, models: Path, seeds: list[int], *, jobs: int = 1,
     cold_start: bool = False, leads: tuple[str, ...] = tuple(LEAD_SCENARIOS), road: Road = DEFAULT_ROAD,
+    extra: dict[str, str] | None = None, extra_vehicle: str = "ice",
 ) -> None:  # fmt: skip
-    """The ACC of each of ``vehicles`` and their models through the lead scenarios ``leads``:
-    write safety.md/.csv and print the table.
+    """The ACC of each of ``vehicles`` and their models through the lead scenarios ``leads``,
+    and each ``extra`` checkpoint (--model; it drives ``extra_vehicle``): write
+    safety.md/.csv and print the table.
 
     Raises:
-        click.BadParameter: --methods names nothing the suite can drive.
+        click.BadParameter: --methods names nothing the suite can drive, or a --model name is a model's in --models.
         click.ClickException: a run failed.
     """
-    with_acc, found = _suite_drivers(models, vehicles, methods, "safety")
-    click.echo(run_suite(out, found, seeds, jobs, cold_start, vehicles, leads, acc=with_acc, road=road))
+    with_acc, found = _suite_drivers(models, vehicles, methods, "safety", extra)
+    own = dict.fromkeys(extra or {}, extra_vehicle)
+    click.echo(run_suite(out, found, seeds, jobs, cold_start, vehicles, leads, acc=with_acc, road=road, model_vehicles=own))
     click.echo(f"Wrote {out}/safety.md, safety.csv and logs/")
 
 
 def random_suite(
     out: Path, scenario: str, methods: str | None, models: Path, seeds: list[int], *, vehicle: str | None = None,
     duration: float | None = None, jobs: int = 1, settle: float = SETTLE_S, cold_start: bool = False,
-    road: Road = DEFAULT_ROAD,
+    road: Road = DEFAULT_ROAD, extra: dict[str, str] | None = None,
 ) -> None:  # fmt: skip
-    """The ACC and the ``scenario`` models on the random episodes of ``seeds``: write
-    summary.json and random.md and print the table.
+    """The ACC and the ``scenario`` models (and each ``extra`` checkpoint, --model) on the
+    random episodes of ``seeds``: write summary.json and random.md and print the table.
 
     Raises:
-        click.BadParameter: --methods names nothing the suite can drive.
+        click.BadParameter: --methods names nothing the suite can drive, or a --model name is a model's in --models.
         click.ClickException: a run failed.
     """
-    with_acc, found = _suite_drivers(models, (scenario,), methods, "random")
+    with_acc, found = _suite_drivers(models, (scenario,), methods, "random", extra)
     veh = vehicle or DEFAULT_VEHICLE[scenario]
     click.echo(run_random(out, found, scenario, seeds, jobs, veh, settle, with_acc, duration, cold_start, road), nl=False)
     click.echo(f"Wrote {out}/summary.json, random.md and logs/")
@@ -451,7 +458,7 @@ def _paper_only(suite: str, given: dict[str, Any]) -> None:
 @click.option("--traffic", default=TRAFFIC_PER_LANE, show_default=True, type=click.IntRange(*TRAFFIC_PER_LANE_RANGE), help="Cars in each adjacent lane (twice as many oncoming) of every run: the spawned servers' --traffic. A camera policy's neighbours are what it may mistake for a threat.")
 @click.option("--sun-elevation", default=",".join(map(str, SUN_ELEVATION)), show_default=True, type=SunElevation(), help="Range [rad] of each run's sun height: the spawned servers' --sun-elevation (the test trajectories keep a fixed sun). A low sun throws shadows across the lane, which a camera policy may take for a car.")
 @click.option("--suite", default="paper", show_default=True, type=click.Choice(SUITES), help="paper: Tables 3/4 on test-1..test-4. safety: the ACC and every model in --models through every lead scenario (docs/scenarios.md) over --seeds, with a pass/fail table; both vehicles unless --scenario is given. random: the ACC and the --scenario models in --models on held-out random episodes over --seeds (summary.json, random.md). openacc: platoons of the laws (--methods acc,hdm,mixed) behind the nine real OpenACC leads, beside the real platoons' amplification (openacc.md). string: each law's (--methods, default acc) and model's speed gain behind sinusoidal leads and its platoons behind held-out random leads (--seeds, default 7001-7003; string.md).")
-@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper, or openacc and string: a platoon of it). A checkpoint trained for the other scenario is refused.")
+@click.option("--model", "model_files", multiple=True, metavar="NAME=PATH", help="Also evaluate this checkpoint, as a method named NAME (repeatable; --suite paper, safety and random, or openacc and string: a platoon of it). A checkpoint trained for the other scenario than --scenario's is refused.")
 @click.option("--followers", default=None, type=click.IntRange(1, MAX_FOLLOWERS), help="Followers in each platoon of --suite openacc (default: the real platoon's length) and string (default: 10).")
 @click.option("--include-early", is_flag=True, help="Keep the runs that ended before their duration (a collision, a lost lead) in the tables' values; by default they are left out, and listed either way.")
 @click.option("--view", is_flag=True, help="Watch each run in a window, one at a time (--suite paper): the camera, a head-up strip and a scrolling plot. The logs are the same as without it.")
@@ -484,18 +491,19 @@ def evaluate(
     if suite == "paper" and road.sun_elevation != SUN_ELEVATION:
         raise click.BadParameter("test-1..test-4 keep a fixed sun; the lead scenarios draw theirs: add --suite safety", param_hint="--sun-elevation")
     leads = _lead_scenarios(lead_scenarios, suite)
-    _paper_only(suite, {"--model": model_files, "--include-early": include_early, "--view": view, "--videos": videos, "--no-figures": no_figures})
+    _paper_only(suite, {"--include-early": include_early, "--view": view, "--videos": videos, "--no-figures": no_figures})
     extra = parse_models(model_files, scenario)
     out_dir, models_path = Path(out), Path(models)
     if suite == "safety":
         # Both vehicles, unless --scenario was given: then that one's ACC and models only.
         given = click.get_current_context().get_parameter_source("scenario") == click.core.ParameterSource.COMMANDLINE
         vehicles = (scenario,) if given else SCENARIOS
-        safety_suite(out_dir, vehicles, methods, models_path, seed_list, jobs=jobs, cold_start=cold_start, leads=leads, road=road)
+        safety_suite(out_dir, vehicles, methods, models_path, seed_list, jobs=jobs, cold_start=cold_start, leads=leads, road=road,
+                     extra=extra, extra_vehicle=scenario)  # fmt: skip
         return None
     if suite == "random":
         random_suite(out_dir, scenario, methods, models_path, seed_list, vehicle=vehicle, duration=duration, jobs=jobs,
-                     settle=settle, cold_start=cold_start, road=road)  # fmt: skip
+                     settle=settle, cold_start=cold_start, road=road, extra=extra)  # fmt: skip
         return None
     return paper_suite(out_dir, scenario, methods, models_path, seed_list, human_files=human_files, vehicle=vehicle, duration=duration,
                        jobs=jobs, settle=settle, cold_start=cold_start, road=road, extra=extra, include_early=include_early,

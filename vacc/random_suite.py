@@ -60,8 +60,8 @@ def random_jobs(
 
 
 def driver_name(job: Job) -> str:
-    """The driver of a job: "acc", or its checkpoint's name ("ice-gap")."""
-    return job.method if job.checkpoint is None else Path(job.checkpoint).stem
+    """The driver of a job: "acc", or its model's name ("ice-gap", or a --model NAME), as its log is named."""
+    return job.method if job.checkpoint is None else Path(job.log).stem.removesuffix(f"-seed{job.seed}")
 
 
 def score_random_run(job: Job, vehicle: str, settle: float = SETTLE_S) -> dict[str, Any]:

@@ -38,20 +38,24 @@ def safety_jobs(
     vehicles: Iterable[str] = SCENARIOS,
     acc: bool = True,
     road: Road = DEFAULT_ROAD,
+    model_vehicles: dict[str, str] | None = None,
 ) -> list[Job]:
     """The runs of the suite: (method, vehicle) x lead scenario x seed.
 
     Args:
         out: the output folder (logs go to ``out/logs``).
-        models: method name ("ice-gap", ...) to checkpoint path; the vehicle is the prefix.
+        models: method name ("ice-gap", ...) to checkpoint path; the vehicle is the prefix,
+            or the model's in ``model_vehicles``.
         seeds: episode seeds.
         scenarios: lead scenario names.
         cold_start: engage the models at frame 0, without the camera's pre-roll.
         vehicles: whose ACC drives (the models drive their own vehicle).
         acc: whether the ACC drives at all (``--methods`` without acc: the models alone).
         road: every run's traffic and sun (the servers' ``--traffic`` and ``--sun-elevation``).
+        model_vehicles: the vehicle of a model whose name does not begin with it (``--model NAME=PATH``).
     """
-    drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, name.split("-")[0], path) for name, path in sorted(models.items())]
+    own = model_vehicles or {}
+    drivers = [("acc", vehicle, None) for vehicle in vehicles if acc] + [(name, own.get(name) or name.split("-")[0], path) for name, path in sorted(models.items())]
     return [
         Job(method if path is None else "ddqn", trajectory, vehicle, seed,
             str(out / "logs" / f"{method}-{vehicle}-{trajectory}-{seed}.csv"), None, path, None, cold_start, road)  # fmt: skip
@@ -84,7 +88,7 @@ def safety_table(jobs: list[Job], scores: list[dict[str, Any]]) -> tuple[str, li
     """A markdown pass/fail table (one row per driver and scenario) and its rows."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for job, score in zip(jobs, scores, strict=True):
-        driver = job.method if job.checkpoint is None else Path(job.checkpoint).stem
+        driver = job.method if job.checkpoint is None else Path(job.log).stem.removesuffix(f"-{job.scenario}-{job.trajectory}-{job.seed}")
         groups.setdefault((f"{driver} ({job.scenario})", job.trajectory), []).append(score)
     rows = []
     for (driver, scenario), runs in groups.items():
@@ -119,7 +123,7 @@ def safety_table(jobs: list[Job], scores: list[dict[str, Any]]) -> tuple[str, li
 def run_suite(
     out: Path, models: dict[str, str], seeds: list[int], jobs: int, cold_start: bool = False,
     vehicles: Iterable[str] = SCENARIOS, scenarios: Iterable[str] = tuple(LEAD_SCENARIOS), acc: bool = True,
-    road: Road = DEFAULT_ROAD,
+    road: Road = DEFAULT_ROAD, model_vehicles: dict[str, str] | None = None,
 ) -> str:  # fmt: skip
     """Drive every run (``jobs`` at a time, each with its own server), write safety.md/.csv.
 
@@ -127,7 +131,7 @@ def run_suite(
         The markdown table.
     """
     (out / "logs").mkdir(parents=True, exist_ok=True)
-    work = safety_jobs(out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, road=road)
+    work = safety_jobs(out, models, seeds, scenarios, cold_start=cold_start, vehicles=vehicles, acc=acc, road=road, model_vehicles=model_vehicles)
     drive_jobs(work, jobs, "safety suite")
     table, rows = safety_table(work, [score_run(j.log) for j in work])
     (out / "safety.md").write_text(f"# Safety suite{road.note()}\n\n" + table)

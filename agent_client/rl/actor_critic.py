@@ -16,7 +16,10 @@ replay memory already computes; and it needs no entropy temperature to tune.
 Network: the DQN's convolutions (the same trunk, :class:`~agent_client.rl.network.QNetwork`'s
 layer names, so a DQN checkpoint's perception copies over) feed
 
-* the actor: ``fc`` (hidden, ReLU, 1 output) and a tanh: the target force in [-1, 1];
+* the actor: ``fc`` (hidden, ReLU, 1 output) and a tanh: the target force in [-1, 1]; or,
+  with ``actor_levels`` a ramp type, ``fc`` (hidden, ReLU, one output per level) and the
+  softmax mean of the levels (:func:`mean_target`, a DQN student's mean decision), so that a
+  student's Q head copies in and the actor starts as its decision, exactly;
 * the critic: a ``critic_trunk`` (hidden, LayerNorm, tanh) and two heads ``q1``, ``q2``
   over (trunk, action) (clipped double Q). Only the critic's gradient trains the
   convolutions; the actor reads them detached (DrQ-v2).
@@ -44,7 +47,7 @@ from agent_client.rl.network import (
 )
 from agent_client.rl.replay import flat_transitions
 
-__all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
+__all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "level_values", "mean_target", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
            "network_of", "policy_of", "recurrent_start", "noise_std", "soft_update", "target_of", "noisy", "student_target"]
 
 CRITIC_NAME = "losses/critic"
@@ -65,14 +68,21 @@ class ActorCritic(nn.Module):
         n_controls: controls per stacked frame (the continuous type's force and set speed).
         conv_channels: the convolutions' channels.
         hidden: units of the actor's and the critic's hidden layers.
+        levels: the force levels the actor averages (``actor_levels``); None: a tanh.
+        temperature: the softmax temperature of that mean.
     """
 
     recurrent = False  # RecurrentActorCritic: a state carried from step to step
 
     def __init__(self, frame_stack: int = 8, speed_scale: float = 30.0, n_controls: int = 2,
-                 conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256):  # fmt: skip
+                 conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256,
+                 levels: tuple[float, ...] | None = None, temperature: float = 2.0):  # fmt: skip
         super().__init__()
         self.speed_scale, self.n_controls = speed_scale, n_controls
+        self.temperature = temperature
+        self.levels: torch.Tensor | None
+        # rebuilt from the config, never saved: a tanh actor's checkpoint keeps its layout
+        self.register_buffer("levels", None if levels is None else torch.tensor(levels, dtype=torch.float32), persistent=False)
         self._control_scale = torch.tensor([1.0, speed_scale][:n_controls])
         c1, c2, c3 = conv_channels
         self.conv = nn.Sequential(
@@ -92,7 +102,8 @@ class ActorCritic(nn.Module):
 
     def _heads_on(self, width: int, hidden: int) -> None:
         """The actor's and the critic's first layers, reading ``width`` features."""
-        self.fc = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, 1))  # the actor
+        n_out = 1 if self.levels is None else len(self.levels)
+        self.fc = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, n_out))  # the actor
         self.critic_trunk = nn.Sequential(nn.Linear(width, hidden), nn.LayerNorm(hidden), nn.Tanh())
 
     @classmethod
@@ -100,7 +111,10 @@ class ActorCritic(nn.Module):
         """The network a :class:`~agent_client.rl.config.Config` with a continuous action
         describes (:class:`RecurrentActorCritic` with ``recurrent`` "gru")."""
         kind = RecurrentActorCritic if getattr(cfg, "recurrent", "none") == "gru" else ActorCritic
-        return kind(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden)
+        named = getattr(cfg, "actor_levels", "none")
+        levels = None if named == "none" else tuple(level_values(named).tolist())
+        return kind(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden,
+                    levels, cfg.decision_temperature)  # fmt: skip
 
     @property
     def device(self) -> torch.device:
@@ -121,9 +135,12 @@ class ActorCritic(nn.Module):
         return torch.cat(parts, dim=1)
 
     def actor(self, z: torch.Tensor) -> torch.Tensor:
-        """``[B]`` the target force in (-1, 1) from features ``z``."""
+        """``[B]`` the target force in [-1, 1] from features ``z``."""
         h = torch.relu(F.linear(z, self._linears[0].weight, self._linears[0].bias))
-        return torch.tanh(F.linear(h, self._linears[1].weight, self._linears[1].bias))[:, 0]
+        out = F.linear(h, self._linears[1].weight, self._linears[1].bias)  # [B, 1] or [B, levels]
+        if self.levels is None:
+            return torch.tanh(out)[:, 0]
+        return mean_target(out, self.levels, self.temperature)
 
     def critic(self, z: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``[B]`` Q1 and Q2 of ``action`` ``[B]`` from features ``z``."""
@@ -381,29 +398,41 @@ class ActorPolicy:
 # ------------------------------------------------------------- warm start from a student
 
 
+def level_values(action: str) -> torch.Tensor:
+    """``[A]`` the force targets of a discrete action type's actions, in action order."""
+    actions = make_action_type(action)
+    return torch.tensor(getattr(actions, "levels", None) or [actions.force(a) for a in range(actions.n)], dtype=torch.float32)
+
+
+def mean_target(out: torch.Tensor, levels: torch.Tensor, temperature: float) -> torch.Tensor:
+    """``[B]`` the mean decision over ``levels`` ``[A]`` from outputs ``out`` ``[B, A]``: the
+    softmax-weighted mean of the levels but the full brake, at ``temperature``, no softer than a
+    firm-braking argmax; the full brake (-1) where the argmax is the full brake. Differentiable
+    where the argmax does not decide alone, so an actor with these outputs learns through it."""
+    top = out.argmax(dim=1)  # [B]
+    keep = torch.ones(len(levels), dtype=torch.bool, device=out.device)
+    keep[EMERGENCY_LEVEL] = False
+    w = torch.softmax(out[:, keep] / temperature, dim=1)  # [B, A - 1]
+    target = (w * levels[keep]).sum(dim=1)
+    firm = levels[top] <= -FIRM_BRAKE
+    target = torch.where(firm, torch.minimum(target, levels[top]), target)
+    return torch.where(top == EMERGENCY_LEVEL, torch.full_like(target, -1.0), target).clamp(-1.0, 1.0)
+
+
 @torch.no_grad()
 def student_targets(q: nn.Module, cfg: Any, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None) -> torch.Tensor:
-    """``[B]`` a DQN student's decision as a force target, batched: the full brake where its
-    argmax is the full brake; with the mean decision, the softmax-weighted mean of its other
-    levels at its temperature (no softer than a firm-braking argmax); else its argmax level.
+    """``[B]`` a DQN student's decision as a force target, batched: with the mean decision,
+    :func:`mean_target` at its temperature; else its argmax level (the full brake: -1).
 
     The per-episode parts of :class:`~agent_client.rl.network.Policy` (brake confirmation,
     deadband, smoothing) are left out: the clone learns the mean, and the ramp smooths it.
     """
-    actions = make_action_type(cfg.action)
-    levels = torch.tensor(getattr(actions, "levels", None) or [actions.force(a) for a in range(actions.n)], dtype=torch.float32)
+    levels = level_values(cfg.action)
     out = q(frames, speeds, controls if getattr(q, "n_controls", 0) else None)  # [B, A]
-    top = out.argmax(dim=1)  # [B]
     if cfg.decision == "mean":
-        keep = torch.ones(len(levels), dtype=torch.bool)
-        keep[EMERGENCY_LEVEL] = False
-        w = torch.softmax(out[:, keep] / cfg.decision_temperature, dim=1)  # [B, A - 1]
-        target = (w * levels[keep]).sum(dim=1)
-        firm = levels[top] <= -FIRM_BRAKE
-        target = torch.where(firm, torch.minimum(target, levels[top]), target)
-    else:
-        target = levels[top]
-    return torch.where(top == EMERGENCY_LEVEL, torch.full_like(target, -1.0), target).clamp(-1.0, 1.0)
+        return mean_target(out, levels, cfg.decision_temperature)
+    top = out.argmax(dim=1)  # [B]
+    return torch.where(top == EMERGENCY_LEVEL, torch.full_like(levels[top], -1.0), levels[top]).clamp(-1.0, 1.0)
 
 
 def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: nn.Module, student_cfg: Any, b: Any,
@@ -425,7 +454,9 @@ def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: n
         frames, speeds, controls = b.frames.to(device), b.speeds.to(device), b.controls.to(device)
         with torch.no_grad():
             z = net.features(frames, speeds, controls)  # the trunk as copied; the clone trains the actor
-    y = student_targets(student, student_cfg, frames, speeds, controls).clamp(min=FULL_BRAKE_TARGET - 0.01)  # [B]
+    y = student_targets(student, student_cfg, frames, speeds, controls)  # [B]
+    if net.levels is None:  # a tanh never reaches -1
+        y = y.clamp(min=FULL_BRAKE_TARGET - 0.01)
     loss = F.mse_loss(net.actor(z), y)
     optimizer.zero_grad()
     loss.backward()

@@ -27,6 +27,7 @@ from agent_client.outputs import unwritable_dir, write_cause, write_text
 from agent_client.preprocess import ZOOMS
 from agent_client.rewards import REWARDS
 from agent_client.rl.config import (
+    ACTOR_LEVELS,
     DECISIONS,
     RECURRENT,
     RESUMABLE_CHANGES,
@@ -49,6 +50,7 @@ ZERO_IS_NONE = ("episode_seconds", "eval_seconds")  # lengths where 0 means none
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
     "teacher": TEACHERS, "decision": DECISIONS, "recurrent": RECURRENT,
+    "actor_levels": ACTOR_LEVELS,
 }  # fmt: skip
 
 

@@ -31,14 +31,15 @@ from protocol.scenarios import (
 )
 
 __all__ = [
-    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
+    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "ACTOR_LEVELS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
     "EnvironmentSettings", "DQNSettings", "NetworkSettings", "EvaluationSettings", "TeacherSettings", "AuxiliarySettings",
     "DecisionSettings", "StreamsSettings", "ActorCriticSettings",
 ]  # fmt: skip
 
 SCHEDULES = ("parallel", "serial")
-DECISIONS = ("argmax", "mean")
-RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)  # how the network's outputs become the force (agent_client.rl.network.Policy)
+DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
+RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)
+ACTOR_LEVELS = ("none", *RAMP_ACTIONS)  # the actor-critic's output: a tanh, or a mean over a ramp type's levels
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -318,6 +319,10 @@ class ActorCriticSettings:
     """(continuous) steps cloning --init-from into the actor."""
     critic_warmup: int = 0
     """(continuous) first updates in which only the critic learns."""
+    actor_levels: str = "none"
+    """(continuous) the actor's output: none, DrQ-v2's tanh; or a ramp action type, the
+    softmax mean of its levels at decision_temperature, as a DQN student's mean decision (from
+    init_from such a student the actor starts as its decision, exactly)."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -513,6 +518,8 @@ def check_actor_critic(cfg: ActorCriticSettings) -> None:
     if not 0 <= cfg.shift_pad <= 16:
         raise _bad("shift_pad", f"must be in 0..16 px, got {cfg.shift_pad}")
     _at_least(cfg, ("bc_steps", "critic_warmup"), 0)
+    if cfg.actor_levels not in ACTOR_LEVELS:
+        raise _bad("actor_levels", f"must be one of {', '.join(ACTOR_LEVELS)}, got {cfg.actor_levels!r}")
 
 
 def check_across_sections(cfg: Config) -> None:
@@ -548,6 +555,8 @@ def check_continuous(cfg: Config) -> None:
             raise _bad("bc_steps", "clones a DQN into the actor-critic's actor: it needs action 'continuous'")
         if cfg.critic_warmup > 0:
             raise _bad("critic_warmup", "holds the actor-critic's actor while its critic learns: it needs action 'continuous'")
+        if cfg.actor_levels != "none":
+            raise _bad("actor_levels", "is the actor-critic's output: it needs action 'continuous'")
         return
     for field, used, what in (
         ("teacher", cfg.teacher != "none", "a teacher's labels (clone a student with init_from and bc_steps)"),

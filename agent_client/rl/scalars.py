@@ -141,18 +141,19 @@ class ScalarLog:
 
 class Progress:
     """The training progress bar (:func:`agent_client.progress.progress_bar`): steps,
-    steps/s and ETA from tqdm, with ε and the recent return after them."""
+    steps/s and ETA from tqdm, with what explores (``label``: ε, or the actor-critic's noise)
+    and the recent return after them."""
 
-    def __init__(self, total: int, enabled: bool = True, initial: int = 0):
+    def __init__(self, total: int, enabled: bool = True, initial: int = 0, label: str = "eps"):
         from agent_client.progress import progress_bar
 
-        self.enabled = enabled
+        self.enabled, self.label = enabled, label
         self.bar = progress_bar(total, "train", enabled=enabled, initial=initial, unit="step")
         self.tty = sys.stderr.isatty()
 
     def update(self, step: int, epsilon: float, recent_return: float, force: bool = False, extra: str = "") -> None:
         """Move to ``step``; ``force`` redraws at once (the final line)."""
-        self.bar.set_postfix_str(f"eps {epsilon:.3f}  return {recent_return:8.2f}" + (f"  {extra}" if extra else ""), refresh=False)
+        self.bar.set_postfix_str(f"{self.label} {epsilon:.3f}  return {recent_return:8.2f}" + (f"  {extra}" if extra else ""), refresh=False)
         self.bar.update(step - self.bar.n)
         if force and self.tty:  # a log gets its final line from close()
             self.bar.refresh()

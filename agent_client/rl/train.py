@@ -144,7 +144,7 @@ def train(
 def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: LoopState, progress: bool) -> float:
     """Act, store, learn, evaluate and checkpoint until ``cfg.total_steps``; returns the wall time [s]."""
     rng, log = learner.acting_rng, learner.log
-    bar = Progress(cfg.total_steps, enabled=progress, initial=state.global_step)
+    bar = Progress(cfg.total_steps, enabled=progress, initial=state.global_step, label="noise" if is_continuous(cfg.action) else "eps")
     recent = deque(state.recent_returns, maxlen=20)
     grid = _Schedule.at(state.global_step, cfg)
     if state.cut is not None and state.cut["eval_due"]:
@@ -195,7 +195,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                     learner.train_step(memory, step)
                 if step % cfg.target_sync_every == 0:
                     learner.sync_target()
-                bar.update(step, epsilon, float(np.mean(recent)) if recent else float("nan"))
+                bar.update(step, _exploration(cfg, step), float(np.mean(recent)) if recent else float("nan"))
             if not done:  # cut by the step budget: kept, so that a larger budget finishes it
                 state.cut = {"options": options, "taken": taken, "return": episode_return, "length": episode_len, "policy": policy.episode_state(),
                              "eval_due": bool(cfg.eval_trajectories) and state.global_step >= grid.next_eval}  # fmt: skip
@@ -203,7 +203,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 state.episodes += 1
                 recent.append(episode_return)
                 for name, value in (("episodic_return", episode_return), ("episodic_length", episode_len),
-                                    ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()), ("epsilon", epsilon)):  # fmt: skip
+                                    ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()),
+                                    ("noise_std", noise_std(cfg, step - 1)) if learner.continuous else ("epsilon", epsilon)):  # fmt: skip
                     log.add(f"charts/{name}", value, state.global_step)
             state.recent_returns = list(recent)
             if STOP.is_set() and state.global_step < cfg.total_steps:
@@ -214,8 +215,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 break
             _evaluate_and_checkpoint(cfg, learner, memory, state, grid)
         learner.wait()
-        bar.update(state.global_step, linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step),
-                   float(np.mean(recent)) if recent else float("nan"), force=True)  # fmt: skip
+        bar.update(state.global_step, _exploration(cfg, state.global_step), float(np.mean(recent)) if recent else float("nan"), force=True)
     finally:
         bar.close()
     return time.perf_counter() - t_start
@@ -243,6 +243,11 @@ def _redrive(cfg: Config, learner: Learner, env: Any, memory: ReplayMemory, cut:
     if not np.array_equal(obs["frames"][-1], memory.frames[(memory.total - 1) % memory.capacity]):
         raise ResumeError(f"{learner.run_dir}: the episode cut at step {learner.saved.get('global_step')} re-drove to another camera frame than the replay memory holds")
     return obs, info
+
+
+def _exploration(cfg: Config, step: int) -> float:
+    """What explores at env step ``step``: the actor-critic's noise std, else the DQN's ε."""
+    return noise_std(cfg, step) if is_continuous(cfg.action) else linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, step)
 
 
 def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int | float]:

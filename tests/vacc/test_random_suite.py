@@ -90,3 +90,25 @@ def test_the_default_seeds_are_the_held_out_ones():
     from vacc.evaluate import _seed_list
 
     assert _seed_list(None, None, "random") == list(range(100, 108))
+
+
+def test_any_checkpoint_drives_beside_the_acc_under_its_own_name(tmp_path):
+    """--model NAME=PATH: a run folder's latest.pt drives as NAME (its logs and its row),
+    beside the ACC; a NAME that a model in --models also has is refused in one line."""
+    from agent_client.rl.checkpoint import save_policy
+    from agent_client.rl.config import Config
+    from agent_client.rl.network import QNetwork
+
+    (tmp_path / "run").mkdir()
+    save_policy(QNetwork(), Config(), tmp_path / "run" / "latest.pt")
+    out = tmp_path / "out"
+    result = vacc("--methods", "acc", "--model", f"mine={tmp_path / 'run' / 'latest.pt'}", "--seeds", "100", "--duration", "2", "--settle", "0.5",
+                  "--jobs", "2", "--out", str(out))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert list(json.loads((out / "summary.json").read_text())) == ["acc", "mine"]
+    assert sorted(p.name for p in (out / "logs").iterdir()) == ["acc-seed100.csv", "mine-seed100.csv"]
+    (tmp_path / "models").mkdir()
+    save_policy(QNetwork(), Config(), tmp_path / "models" / "ice-gap.pt")
+    result = vacc("--models", str(tmp_path / "models"), "--model", f"ice-gap={tmp_path / 'run' / 'latest.pt'}", "--out", str(tmp_path / "o"), timeout=60)
+    assert result.returncode == 2 and "--model" in result.stderr and "another NAME" in result.stderr, result.stderr
+    assert not (tmp_path / "o").exists()

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from vacc.recipes import (
+    LATE_OPTIONS,
     RECIPES_DIR,
     RecipeError,
     digest,
@@ -59,7 +60,8 @@ def test_digest_is_of_the_content_not_the_layout(tmp_path):
     for stage in content["stage"]:
         stage.pop("known_weights", None)  # an outcome, left out (below)
         stage.pop("cpu_path", None)  # the kernels: the same stage on any, left out
-        stage.pop("critic_warmup", None)  # an option added late, at its inert value: left out
+        for late in LATE_OPTIONS:  # options added late, at their inert values: left out
+            stage.pop(late, None)
     a = digest(content)
     assert a == load_recipe("ev-force").digest
     assert parse_recipe(tomllib.loads("# a comment\n" + text), Path("x.toml")).digest == a
@@ -92,25 +94,27 @@ def test_reseed_from_names_a_stage_and_is_in_the_digest():
     _refuse(c, "recipe.reseed_from", "'nowhere' is no stage")
 
 
-def test_an_option_added_late_leaves_digests_and_keys_alone_at_its_inert_value():
-    """critic_warmup came after the recipes were digested: written in at 0 it changes no
-    digest and no stage key (runs and --reuse stay valid); any other value is a new stage."""
+@pytest.mark.parametrize(("late", "other"), [("critic_warmup", 500), ("actor_levels", "ramp")])
+def test_an_option_added_late_leaves_digests_and_keys_alone_at_its_inert_value(late, other):
+    """critic_warmup and actor_levels came after the recipes were digested: written in at
+    their inert values they change no digest and no stage key (runs and --reuse stay valid);
+    any other value is a new stage."""
     from vacc.reproduce import stage_key
 
     c = _content()
     r = parse_recipe(c, Path("recipes/x.toml"))
-    assert all(s.options["critic_warmup"] == 0 for s in r.stages if s.kind == "train")
+    assert all(s.options[late] == LATE_OPTIONS[late] for s in r.stages if s.kind == "train")
     for stage in c["stage"]:
-        stage.pop("critic_warmup", None)
-    assert digest({**c, "stage": [{k: v for k, v in st.items() if k not in ("known_weights", "cpu_path")} for st in c["stage"]]}) == r.digest
+        stage.pop(late, None)
+    assert digest({**c, "stage": [{k: v for k, v in st.items() if k not in ("known_weights", "cpu_path", *LATE_OPTIONS)} for st in c["stage"]]}) == r.digest
     opts = {"seed": r.seed, "smoke": False, "reseed_from": None}
     mix = r.stage("mix")
-    warm = mix._replace(options={**mix.options, "critic_warmup": 500})
-    assert stage_key(r, mix, opts, []) == stage_key(r, mix._replace(options={k: v for k, v in mix.options.items() if k != "critic_warmup"}), opts, [])
-    assert stage_key(r, warm, opts, []) != stage_key(r, mix, opts, [])
+    changed = mix._replace(options={**mix.options, late: other})
+    assert stage_key(r, mix, opts, []) == stage_key(r, mix._replace(options={k: v for k, v in mix.options.items() if k != late}), opts, [])
+    assert stage_key(r, changed, opts, []) != stage_key(r, mix, opts, [])
     c = _content()
-    c["stage"][-1]["critic_warmup"] = 500
-    _refuse(c, "stage 'mix'", "critic_warmup")  # not a continuous stage: refused
+    c["stage"][-1][late] = other
+    _refuse(c, "stage 'mix'", late)  # not a continuous stage: refused
 
 
 def _content() -> dict:

@@ -156,3 +156,16 @@ def test_bad_options_fail_naming_the_option(tmp_path, args, option):
     )  # fmt: skip
     assert result.returncode == 2 and option in result.stderr, result.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_named_model_drives_its_own_vehicle_and_keeps_its_name_in_the_table(tmp_path):
+    """--model NAME=PATH in the safety suite: the vehicle is the checkpoint's, not the name's
+    prefix, and the table names the model NAME, not its file."""
+    from vacc.safety import safety_jobs
+
+    jobs = safety_jobs(tmp_path, {"mine": "run/latest.pt", "ev-gap": "m/ev-gap.pt"}, [0], ["stopped"], vehicles=("ice",), acc=False,
+                       model_vehicles={"mine": "ice"})  # fmt: skip
+    assert [(j.scenario, Path(j.log).name) for j in jobs] == [("ev", "ev-gap-ev-stopped-0.csv"), ("ice", "mine-ice-stopped-0.csv")]
+    score = score_run(_log(tmp_path, [(25.0, 55.0, 0)] * 300))
+    _, rows = safety_table(jobs, [score, score])
+    assert [r["driver"] for r in rows] == ["ev-gap (ev)", "mine (ice)"]

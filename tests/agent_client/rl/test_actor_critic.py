@@ -147,10 +147,39 @@ def test_behaviour_cloning_learns_the_students_decision_on_a_tiny_set():
     assert errors[-1] < 0.2 * errors[0]
 
 
+def test_a_levels_actor_from_a_students_q_head_starts_as_its_mean_decision_exactly():
+    """actor_levels: the student's trunk and Q head copy in, and the actor's target is the
+    student's mean decision on every frame, the full brake and a firm brake's floor included,
+    with no cloning; its gradient still reaches its output layer."""
+    torch.manual_seed(0)
+    student_cfg = Config(action="ramp-fine", teacher="acc", decision="mean", decision_temperature=2.0, conv_channels=(4, 8, 8), hidden=32)
+    student = QNetwork.of(student_cfg)
+    net = ac.ActorCritic.of(Config(**{**CONT.__dict__, "actor_levels": "ramp-fine", "decision_temperature": 2.0}))
+    kept = transfer_weights(student, net)
+    assert "fc.2.weight" not in kept and "q1.0.weight" in kept  # the Q head is the actor's; the critic is new
+    b = _batch().sample(16, np.random.default_rng(4), 1, 0.99)
+    for bias in (None, 0, 2):  # as trained; the full brake the argmax; a firm brake (-0.6) the argmax
+        if bias is not None:
+            with torch.no_grad():
+                student.fc[-1].bias[bias] += 1e3
+                net.fc[-1].bias[bias] += 1e3
+        want = ac.student_targets(student, student_cfg, b.frames, b.speeds, b.controls)
+        got = net.actor(net.features(b.frames, b.speeds, b.controls))
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
+        assert bias != 0 or (got == -1.0).all()
+        assert bias != 2 or (got <= -0.6).all()
+    with torch.no_grad():
+        net.fc[-1].bias[:3] = student.fc[-1].bias[:3] = 0.0  # no argmax alone: the softmax mean decides
+    z = net.features(b.frames, b.speeds, b.controls).detach()
+    net.actor(z).sum().backward()
+    assert net.fc[-1].weight.grad.abs().sum() > 0
+
+
 @pytest.mark.parametrize(
     ("changes", "field"),
     [({"teacher": "acc"}, "teacher"), ({"aux_gap": 1.0}, "aux_gap"), ({"bc_steps": 5}, "bc_steps"), ({"critic_tau": 0.0}, "critic_tau"),
-     ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup")],
+     ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup"),
+     ({"actor_levels": "fine"}, "actor_levels")],
 )  # fmt: skip
 def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     with pytest.raises(ConfigError) as err:
@@ -160,6 +189,8 @@ def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
         Config(bc_steps=3, init_from="x.pt")  # a DQN run clones nothing
     with pytest.raises(ConfigError, match="critic_warmup.*continuous"):
         Config(critic_warmup=100)  # nor has it an actor to hold
+    with pytest.raises(ConfigError, match="actor_levels.*continuous"):
+        Config(actor_levels="ramp-fine")
 
 
 @pytest.mark.slow
