@@ -16,6 +16,8 @@ checks (gates) its model must pass. Its layout::
                              full_brake_confirm, deadband, smoothing
       narrow                 input, conv_channels = [c1, c2, c3], hidden
       export                 input
+      shipped                model (a shipped model's name: models/<model>.pt, which its own
+                             recipe rebuilds), weights_sha256 (its weights, checked)
     [gates.tests]            seed, max_gap_rmse_m (each of test-1..test-4), no collision
     [gates.safety]           seeds, scenarios (lead scenarios; each run must pass)
     [gates.random]           seeds, max_gap_rmse_m (the worst seed), no collision
@@ -72,6 +74,7 @@ STAGE_KINDS: dict[str, tuple[str, ...]] = {
     "decide": ("input", "decision", "temperature", "brake_share", "brake_confirm", "full_brake_confirm", "deadband", "smoothing"),
     "narrow": ("input", "conv_channels", "hidden"),
     "export": ("input",),
+    "shipped": ("model", "weights_sha256"),
 }
 """Each stage kind's keys besides name, kind and note (all required)."""
 
@@ -250,7 +253,7 @@ def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
         for v in values:
             _check_ref(path, f"{where}.{key}", v, name, earlier, optional=key in TRAIN_REFS)
     known = raw.get("known_weights")
-    if known is not None and not (isinstance(known, str) and len(known) == 64 and all(c in "0123456789abcdef" for c in known)):
+    if known is not None and not _is_sha256(known):
         raise _bad(path, f"{where}.known_weights", f"{known!r} is not a SHA-256 (64 lowercase hex digits)")
     cpu_path = raw.get("cpu_path")
     if cpu_path is not None and (kind != "train" or cpu_path not in CPU_PATHS):
@@ -263,6 +266,10 @@ def _parse_stage(path: Path, i: int, raw: Any, earlier: list[str]) -> Stage:
     return stage
 
 
+def _is_sha256(value: Any) -> bool:
+    return isinstance(value, str) and len(value) == 64 and all(c in "0123456789abcdef" for c in value)
+
+
 def keyed_options(options: dict[str, Any]) -> dict[str, Any]:
     """``options`` without the :data:`LATE_OPTIONS` at their inert values: what a digest or a key hashes."""
     return {k: v for k, v in options.items() if not (k in LATE_OPTIONS and v == LATE_OPTIONS[k])}
@@ -270,7 +277,7 @@ def keyed_options(options: dict[str, Any]) -> dict[str, Any]:
 
 def stage_ref_keys(kind: str) -> tuple[str, ...]:
     """The keys of a stage of ``kind`` that name other stages."""
-    return {"train": TRAIN_REFS, "average": ("inputs",)}.get(kind, ("input",))
+    return {"train": TRAIN_REFS, "average": ("inputs",), "shipped": ()}.get(kind, ("input",))
 
 
 def stage_refs(stage: Stage) -> list[str]:
@@ -363,6 +370,11 @@ def _check_surgery(path: Path, where: str, stage: Stage) -> None:
         for key in ("brake_confirm", "full_brake_confirm"):
             if not isinstance(o[key], int) or isinstance(o[key], bool) or o[key] < 1:
                 raise _bad(path, f"{where}.{key}", f"{o[key]!r} is not a whole number >= 1")
+    elif stage.kind == "shipped":
+        if not isinstance(o["model"], str) or not o["model"] or not all(c.isalnum() or c in "-_" for c in o["model"]):
+            raise _bad(path, f"{where}.model", f"{o['model']!r} is not a shipped model's name (models/<name>.pt)")
+        if not _is_sha256(o["weights_sha256"]):
+            raise _bad(path, f"{where}.weights_sha256", f"{o['weights_sha256']!r} is not a SHA-256 (64 lowercase hex digits)")
     elif stage.kind == "narrow":
         c = o["conv_channels"]
         if not isinstance(c, list) or len(c) != 3 or not all(isinstance(x, int) and x >= 1 for x in c):

@@ -54,6 +54,7 @@ from agent_client.rl.config import Config, single_stream_only
 from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
 from vacc.host import CPU_PATHS, PINNED, describe, label, pinned_path, use_cpu_path
+from vacc.paths import models_dir
 from vacc.recipes import (
     Recipe,
     RecipeError,
@@ -175,9 +176,20 @@ def _kept_evaluation(stage: Stage, run: Path, step: int) -> Path:
 
 
 def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:
-    """Run an average, decide, narrow or export stage into ``dst``."""
+    """Run an average, decide, narrow, export or shipped stage into ``dst``.
+
+    Raises:
+        ValueError: a shipped model that is not there, or whose weights are not the recipe's.
+    """
     o = stage.options
-    if stage.kind == "average":
+    if stage.kind == "shipped":
+        src = models_dir() / f"{o['model']}.pt"
+        if not src.is_file():
+            raise ValueError(f"{src}: no such shipped model")
+        if (got := weights_sha256(src)) != o["weights_sha256"]:
+            raise ValueError(f"{src}: its weights' SHA-256 is {got}, the recipe's {o['weights_sha256']}: the recipe was written for another file")
+        export_policy(str(src), dst)
+    elif stage.kind == "average":
         average_policies([inputs[r] for r in stage_refs(stage)], dst, [float(w) for w in o["weights"]])
     elif stage.kind == "decide":
         with_decision(inputs[stage_refs(stage)[0]], dst, o["decision"], float(o["temperature"]), float(o["brake_share"]),
@@ -298,6 +310,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     # their weights (their files also record paths) and by their paths relative to the output
     # folder, so that a run records the same lineage in any folder.
     parents = [{"sha256": done[name]["weights_sha256"], "digest_of": "weights", "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
+    if stage.kind == "shipped":  # a file of the repository, which its own recipe rebuilds
+        parents.append({"sha256": stage.options["weights_sha256"], "digest_of": "weights", "path": f"models/{stage.options['model']}.pt", "role": "shipped"})
     made = {"name": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
     lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
     stamp_lineage(dst, lineage)

@@ -228,3 +228,14 @@ def test_ice_gap_names_the_weights_of_its_shipped_history():
     recipe = load_recipe("ice-gap")
     known = {s.name for s in recipe.stages if s.known_weights}
     assert {"scratch", "final"} <= known
+
+
+def test_a_shipped_stage_names_a_model_and_its_weights():
+    c = tomllib.loads((RECIPES_DIR / "ice-eco-ac.toml").read_text())
+    r = parse_recipe(c, Path("x.toml"))
+    assert r.stages[0].kind == "shipped" and stage_refs(r.stages[0]) == [] and stage_refs(r.stages[1]) == ["ice-eco"]
+    c["stage"][0]["weights_sha256"] = "abc"
+    _refuse(c, "stage 'ice-eco'.weights_sha256", "not a SHA-256")
+    c = tomllib.loads((RECIPES_DIR / "ice-eco-ac.toml").read_text())
+    c["stage"][0]["model"] = "../models/ice-eco"
+    _refuse(c, "stage 'ice-eco'.model", "not a shipped model's name")

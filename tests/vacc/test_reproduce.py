@@ -280,3 +280,26 @@ def test_a_tail_replicate_reuses_the_stages_before_it_and_a_stage_made_otherwise
     out = _finish(proc)
     assert proc.returncode == 1 and f"{c / 'ev-force'} holds a stage made with other options, seed or parents than this run's ev-force" in out, out[-2000:]
     assert (c / "ev-force" / "ev-force.pt").read_bytes() == before and not (c / "mix").exists()
+
+
+@pytest.mark.slow
+def test_a_shipped_stage_takes_the_file_whose_weights_the_recipe_names_and_refuses_another(tmp_path):
+    """ice-eco-ac starts from the shipped ice-eco: its lineage names that file's weights; a
+    models folder whose ice-eco.pt has other weights is refused in one line, naming both."""
+    from agent_client.rl.checkpoint import read_checkpoint, save_policy
+    from agent_client.rl.config import Config
+    from agent_client.rl.network import QNetwork
+    from vacc.recipes import load_recipe
+
+    shipped = load_recipe("ice-eco-ac").stage("ice-eco").options
+    out = _finish(_reproduce("ice-eco-ac", tmp_path / "ok"))
+    lineage = read_checkpoint(tmp_path / "ok" / "ice-eco" / "ice-eco.pt")["lineage"]
+    assert {"sha256": shipped["weights_sha256"], "digest_of": "weights", "path": "models/ice-eco.pt", "role": "shipped"} in lineage["parents"], out
+    (tmp_path / "models").mkdir()
+    save_policy(QNetwork(), Config(), tmp_path / "models" / "ice-eco.pt")
+    proc = subprocess.run([sys.executable, "-m", "vacc", "reproduce", "ice-eco-ac", "--out", str(tmp_path / "other"), "--smoke", "--quiet"],
+                          cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT), "VACC_MODELS": str(tmp_path / "models")},
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    line = proc.stderr.strip().splitlines()[-1]
+    assert "stage ice-eco" in line and shipped["weights_sha256"] in line and "ice-eco.pt" in line, proc.stderr
