@@ -47,7 +47,7 @@ from agent_client.rl.network import (
 )
 from agent_client.rl.replay import flat_transitions
 
-__all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "level_values", "mean_target", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
+__all__ = ["ActorCritic", "RecurrentActorCritic", "ActorPolicy", "update_sequences", "ACLosses", "random_shift", "explore", "update", "student_targets", "clone_student", "level_values", "mean_target", "anchor_targets", "ACTOR_NAME", "CRITIC_NAME", "VALUES_NAME", "BC_NAME",
            "network_of", "policy_of", "recurrent_start", "noise_std", "soft_update", "target_of", "noisy", "student_target"]
 
 CRITIC_NAME = "losses/critic"
@@ -248,10 +248,11 @@ class ACLosses(NamedTuple):
     critic: float
     actor: float
     q_values: float
+    bc: float | None = None  # with an anchor (bc_weight): the actor's mean squared distance to the student's decision
 
 
 def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, b: Any, cfg: Any, std: float,
-           device: torch.device, log: bool, actor: bool = True) -> ACLosses | None:  # fmt: skip
+           device: torch.device, log: bool, actor: bool = True, anchor: torch.Tensor | None = None) -> ACLosses | None:  # fmt: skip
     """One DrQ-v2 step on a replay batch: the critic's n-step clipped double-Q loss and the
     actor's -min(Q1, Q2), summed into one backward and one Adam step (Adam is per tensor, so
     this is two optimisers at the same rate), then the critic's target moves ``critic_tau``.
@@ -261,6 +262,11 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
     Without ``actor`` (the critic's warm-up, ``critic_warmup``) the actor's loss is left out
     and the convolutions the actor reads stay too: the actor drives as cloned while the
     critic's own layers learn the values of what it does.
+
+    With ``anchor`` ``[B]`` (the student's decision on the batch, ``bc_weight`` > 0), the
+    actor's loss is TD3+BC's (Fujimoto and Gu 2021): -min(Q1, Q2) over its mean magnitude,
+    plus ``bc_weight`` times the squared distance to the anchor, so that the actor improves
+    on the student where the critic is sure and stays near it elsewhere.
     """
     obs = random_shift(scale_frames(b.frames.to(device)), cfg.shift_pad)  # [B, S, H, W]
     next_obs = random_shift(scale_frames(b.next_frames.to(device)), cfg.shift_pad)
@@ -268,11 +274,12 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
         z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
-    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor)
+    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor, anchor)
 
 
 def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, optimizer: torch.optim.Optimizer, seq: Any,
-                     cfg: Any, std: float, device: torch.device, log: bool, actor: bool = True) -> ACLosses | None:  # fmt: skip
+                     cfg: Any, std: float, device: torch.device, log: bool, actor: bool = True,
+                     anchor: torch.Tensor | None = None) -> ACLosses | None:  # fmt: skip
     """:func:`update` on replayed sequences (:class:`~agent_client.rl.replay.SequenceSamples`)
     for the recurrent trunk: each sequence shifted as one, unrolled from its stored state, and
     the one-step losses taken on its steps past the burn-in (R2D2)."""
@@ -281,11 +288,11 @@ def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, op
     with torch.set_grad_enabled(actor):  # the warm-up keeps the trunk the actor reads
         h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
     keep = seq.train.to(device)  # [B, L]
-    return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log, actor)
+    return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log, actor, anchor)
 
 
 def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, z: torch.Tensor, next_z: torch.Tensor,
-             b: Any, cfg: Any, std: float, device: torch.device, log: bool, actor: bool) -> ACLosses | None:  # fmt: skip
+             b: Any, cfg: Any, std: float, device: torch.device, log: bool, actor: bool, anchor: torch.Tensor | None = None) -> ACLosses | None:  # fmt: skip
     """The losses and the step of :func:`update` on features ``z`` (with the graph) and ``next_z`` (without)."""
     with torch.no_grad():
         noise = (torch.randn(len(next_z), device=device) * std).clamp(-cfg.noise_clip, cfg.noise_clip)  # [B]
@@ -298,8 +305,10 @@ def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optim
     critic_loss = F.mse_loss(q1, y) + F.mse_loss(q2, y)
     frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
     zd = z.detach()
-    pq1, pq2 = _critic_with(net, frozen, zd)
-    actor_loss = -torch.min(pq1, pq2).mean()
+    a = net.actor(zd)  # [B]
+    q_pi = torch.min(*_critic_with(net, frozen, zd, a))
+    bc = None if anchor is None else F.mse_loss(a, anchor)
+    actor_loss = -q_pi.mean() if bc is None else -q_pi.mean() / q_pi.abs().mean().detach().clamp(min=1e-6) + cfg.bc_weight * bc
     optimizer.zero_grad()
     (critic_loss + actor_loss if actor else critic_loss).backward()
     nn.utils.clip_grad_norm_(net.parameters(), cfg.max_grad_norm)
@@ -307,14 +316,14 @@ def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optim
     soft_update(net, target, cfg.critic_tau)
     if not log:
         return None
-    return ACLosses(critic_loss.item(), actor_loss.item(), torch.min(q1, q2).mean().item())
+    return ACLosses(critic_loss.item(), actor_loss.item(), torch.min(q1, q2).mean().item(), None if bc is None else bc.item())
 
 
-def _critic_with(net: ActorCritic, frozen: dict[str, torch.Tensor], z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Q1, Q2 of the actor's own action on features ``z``, with the critic's weights ``frozen``."""
+def _critic_with(net: ActorCritic, frozen: dict[str, torch.Tensor], z: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Q1, Q2 of the actor's own action ``a`` ``[B]`` on features ``z``, with the critic's weights ``frozen``."""
     trunk = F.linear(z, frozen["critic_trunk.0.weight"], frozen["critic_trunk.0.bias"])
     trunk = torch.tanh(F.layer_norm(trunk, trunk.shape[-1:], frozen["critic_trunk.1.weight"], frozen["critic_trunk.1.bias"]))
-    h = torch.cat([trunk, net.actor(z)[:, None]], dim=1)
+    h = torch.cat([trunk, a[:, None]], dim=1)
     out = []
     for head in ("q1", "q2"):
         x = torch.relu(F.linear(h, frozen[f"{head}.0.weight"], frozen[f"{head}.0.bias"]))
@@ -463,6 +472,18 @@ def clone_student(net: ActorCritic, optimizer: torch.optim.Optimizer, student: n
     nn.utils.clip_grad_norm_(net.parameters(), max_grad_norm)
     optimizer.step()
     return loss.item()
+
+
+def anchor_targets(net: ActorCritic, student: nn.Module, student_cfg: Any, b: Any, device: torch.device) -> torch.Tensor:
+    """``[N]`` the student's decision (:func:`student_targets`) on the steps an update trains:
+    a batch's observations, or a sequence batch's steps past the burn-in, in
+    :func:`update_sequences`' order (the TD3+BC anchor of ``bc_weight``)."""
+    if isinstance(net, RecurrentActorCritic):
+        keep = b.train.to(device)  # [B, L]
+        frames, speeds, controls = (t.to(device)[:, :-1][keep] for t in (b.frames, b.speeds, b.controls))
+    else:
+        frames, speeds, controls = b.frames.to(device), b.speeds.to(device), b.controls.to(device)
+    return student_targets(student, student_cfg, frames, speeds, controls)
 
 
 def recurrent_start(src: nn.Module) -> dict[str, torch.Tensor]:

@@ -319,6 +319,9 @@ class ActorCriticSettings:
     """(continuous) steps cloning --init-from into the actor."""
     critic_warmup: int = 0
     """(continuous) first updates in which only the critic learns."""
+    bc_weight: float = 0.0
+    """(continuous) TD3+BC: the weight of the actor's squared distance to the init_from
+    student's decision, beside its value over the values' mean magnitude (0: DrQ-v2's -Q)."""
     actor_levels: str = "none"
     """(continuous) the actor's output: none, DrQ-v2's tanh; or a ramp action type, the
     softmax mean of its levels at decision_temperature, as a DQN student's mean decision (from
@@ -512,7 +515,7 @@ def check_streams(cfg: StreamsSettings) -> None:
 
 def check_actor_critic(cfg: ActorCriticSettings) -> None:
     """DrQ-v2's noise, target rate, augmentation and warm start. Raises ConfigError."""
-    _finite_and_not_negative(cfg, ("noise_start", "noise_end", "noise_clip"))
+    _finite_and_not_negative(cfg, ("noise_start", "noise_end", "noise_clip", "bc_weight"))
     if not 0.0 < cfg.critic_tau <= 1.0:
         raise _bad("critic_tau", f"must be in (0, 1], got {cfg.critic_tau}")
     if not 0 <= cfg.shift_pad <= 16:
@@ -557,6 +560,8 @@ def check_continuous(cfg: Config) -> None:
             raise _bad("critic_warmup", "holds the actor-critic's actor while its critic learns: it needs action 'continuous'")
         if cfg.actor_levels != "none":
             raise _bad("actor_levels", "is the actor-critic's output: it needs action 'continuous'")
+        if cfg.bc_weight > 0.0:
+            raise _bad("bc_weight", "anchors the actor-critic's actor to a student: it needs action 'continuous'")
         return
     for field, used, what in (
         ("teacher", cfg.teacher != "none", "a teacher's labels (clone a student with init_from and bc_steps)"),
@@ -565,8 +570,9 @@ def check_continuous(cfg: Config) -> None:
     ):  # fmt: skip
         if used:
             raise _bad(field, f"is not for the actor-critic (action 'continuous'): it has no {what}")
-    if cfg.bc_steps > 0 and cfg.init_from is None:
-        raise _bad("bc_steps", "clones the init_from checkpoint's decision: give init_from")
+    for field in ("bc_steps", "bc_weight"):
+        if getattr(cfg, field) > 0 and cfg.init_from is None:
+            raise _bad(field, "reads the init_from checkpoint's decision: give init_from")
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:

@@ -231,8 +231,8 @@ class Learner:
         self.replay_names: list[str] = []
         self.lineage: Lineage | None = None
         # (actor-critic, --bc-steps) the student drives until learning starts and is cloned then;
-        # loaded before a resume restores the generators, as building a network draws from torch's
-        self.student = load_policy(str(cfg.init_from), self.device) if self.continuous and cfg.bc_steps > 0 else None
+        # (--bc-weight) it anchors the actor's every step; loaded before a resume restores the generators, as building a network draws from torch's
+        self.student = load_policy(str(cfg.init_from), self.device) if self.continuous and (cfg.bc_steps > 0 or cfg.bc_weight > 0.0) else None
         if resume:  # every check that can fail, before anything in the run folder is written
             self._resume()
             if load_replay is not None:
@@ -276,8 +276,9 @@ class Learner:
         if cfg.init_from is None:
             return
         init_q, init_cfg = load_policy(cfg.init_from)
-        if cfg.bc_steps > 0 and init_q.recurrent:
-            raise InputFileError(f"{cfg.init_from}: a recurrent network cannot be the student of --bc-steps (it clones a frame-stack DQN's decision): give a frame-stack student or --bc-steps 0")
+        if (cfg.bc_steps > 0 or cfg.bc_weight > 0.0) and init_q.recurrent:
+            raise InputFileError(f"{cfg.init_from}: a recurrent network cannot be the student of --bc-steps or --bc-weight (they read a frame-stack DQN's decision): "
+                                 "give a frame-stack student")  # fmt: skip
         if (init_cfg.frame_stack, init_cfg.stack_stride, init_cfg.speed_scale, init_cfg.zoom) != (cfg.frame_stack, cfg.stack_stride, cfg.speed_scale, cfg.zoom):
             raise InputFileError(f"{cfg.init_from}: trained with another frame stack, stride, speed scale or zoom")
         widths = [(",".join(map(str, c.conv_channels)), c.hidden) for c in (init_cfg, cfg)]
@@ -426,9 +427,15 @@ class Learner:
         for the recurrent trunk), its noise at ``_std``; the actor learns from update ``critic_warmup`` on."""
         step = ac.update_sequences if isinstance(b, SequenceSamples) else ac.update
         actor = self.updates >= self.cfg.critic_warmup
-        losses = step(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None, actor)  # type: ignore[arg-type]
+        anchor = None
+        if actor and self.cfg.bc_weight > 0.0:  # TD3+BC: the student's decision on the batch
+            assert self.student is not None  # loaded with the learner
+            anchor = ac.anchor_targets(self.q, *self.student, b, self.device)  # type: ignore[arg-type]
+        losses = step(self.q, self.target, self.optimizer, b, self.cfg, self._std, self.device, log_step is not None, actor, anchor)  # type: ignore[arg-type]
         self.updates += 1
-        return None if losses is None else UpdateLosses(losses.critic, losses.q_values, {ac.ACTOR_NAME: losses.actor})
+        if losses is None:
+            return None
+        return UpdateLosses(losses.critic, losses.q_values, {ac.ACTOR_NAME: losses.actor} | ({} if losses.bc is None else {ac.BC_NAME: losses.bc}))
 
     def _clone_student(self, memory: ReplayMemory | StreamReplay, step: int) -> None:
         """The behaviour-cloning warm start: ``bc_steps`` steps of the actor on the

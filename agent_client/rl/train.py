@@ -264,7 +264,8 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
     """
     rng = learner.acting_rng
     if learner.continuous:
-        if learner.student is not None and step < cfg.learning_starts:
+        if cfg.bc_steps > 0 and step < cfg.learning_starts:
+            assert learner.student is not None  # loaded with the learner
             if learner.q.recurrent:
                 learner.acting_policy.target(obs)  # its state steps on every observation, whoever drives
             return noisy(student_target(*learner.student, obs), noise_std(cfg, step), rng)

@@ -69,7 +69,7 @@ def test_update_trains_the_critic_through_the_trunk_and_the_actor_alone():
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
     b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
     losses = ac.update(net, target, opt, b, CONT, 0.2, torch.device("cpu"), log=True)
-    assert losses is not None and np.isfinite(losses).all()
+    assert losses is not None and np.isfinite(losses[:3]).all() and losses.bc is None  # no anchor: DrQ-v2's actor loss
     moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
     assert {"conv.0.weight", "fc.0.weight", "fc.2.weight", "critic_trunk.0.weight", "q1.0.weight", "q2.2.weight"} <= moved
     # the target moved critic_tau of the way, and only its critic
@@ -99,7 +99,7 @@ def test_the_actors_loss_reaches_the_actor_only():
     b = _batch().sample(8, np.random.default_rng(1), 1, 0.99)
     z = net.features(b.frames, b.speeds, b.controls).detach()
     frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
-    q1, q2 = ac._critic_with(net, frozen, z)
+    q1, q2 = ac._critic_with(net, frozen, z, net.actor(z))
     torch.testing.assert_close(q1, net.critic(z, net.actor(z))[0])  # the critic's own numbers
     (-torch.min(q1, q2).mean()).backward()
     assert {k for k, p in net.named_parameters() if p.grad is not None} == {"fc.0.weight", "fc.0.bias", "fc.2.weight", "fc.2.bias"}
@@ -175,11 +175,30 @@ def test_a_levels_actor_from_a_students_q_head_starts_as_its_mean_decision_exact
     assert net.fc[-1].weight.grad.abs().sum() > 0
 
 
+def test_an_anchor_pulls_the_actor_to_the_students_decision():
+    """bc_weight (TD3+BC): with a heavy weight the actor's distance to the anchor falls,
+    and the logged distance is that mean squared error."""
+    torch.manual_seed(0)
+    cfg = Config(**{**CONT.__dict__, "bc_weight": 20.0, "init_from": "student.pt", "shift_pad": 0})
+    net = ac.ActorCritic.of(cfg)
+    target = ac.target_of(net)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
+    anchor = torch.full((8,), -0.3)
+    dist = lambda: float(((net.actor(net.features(b.frames, b.speeds, b.controls)) - anchor) ** 2).mean())  # noqa: E731
+    with torch.no_grad():
+        first = dist()
+    losses = [ac.update(net, target, opt, b, cfg, 0.0, torch.device("cpu"), log=True, anchor=anchor) for _ in range(40)]
+    assert losses[0].bc is not None and np.isfinite(losses[0].bc)
+    with torch.no_grad():
+        assert dist() < 0.2 * first
+
+
 @pytest.mark.parametrize(
     ("changes", "field"),
     [({"teacher": "acc"}, "teacher"), ({"aux_gap": 1.0}, "aux_gap"), ({"bc_steps": 5}, "bc_steps"), ({"critic_tau": 0.0}, "critic_tau"),
      ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup"),
-     ({"actor_levels": "fine"}, "actor_levels")],
+     ({"actor_levels": "fine"}, "actor_levels"), ({"bc_weight": -1.0}, "bc_weight"), ({"bc_weight": 1.0}, "bc_weight")],
 )  # fmt: skip
 def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     with pytest.raises(ConfigError) as err:
@@ -191,6 +210,8 @@ def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
         Config(critic_warmup=100)  # nor has it an actor to hold
     with pytest.raises(ConfigError, match="actor_levels.*continuous"):
         Config(actor_levels="ramp-fine")
+    with pytest.raises(ConfigError, match="bc_weight.*continuous"):
+        Config(bc_weight=1.0, init_from="x.pt")
 
 
 @pytest.mark.slow
@@ -251,3 +272,21 @@ def test_until_learning_starts_the_student_drives_so_the_clone_sees_its_states(t
     want = ac.student_targets(student, student_cfg, b.frames, b.speeds, b.controls)
     torch.testing.assert_close(b.actions, want.to(torch.float32), rtol=0, atol=1e-6)
     assert want.std() > 0  # the student decides, not a constant
+
+
+@pytest.mark.slow
+def test_a_run_anchored_to_its_student_logs_the_distance_and_resumes_exactly(tmp_path):
+    """--bc-weight with --actor-levels: the actor starts as the student and is anchored to it;
+    the distance is logged while the actor learns; a resumed run equals an uninterrupted one."""
+    student_cfg = Config(action="ramp-fine", conv_channels=(4, 8, 8), hidden=32)
+    torch.manual_seed(7)
+    save_policy(QNetwork.of(student_cfg), student_cfg, tmp_path / "student.pt")
+    cfg = Config(**{**CONT.__dict__, "init_from": str(tmp_path / "student.pt"), "bc_weight": 0.5, "actor_levels": "ramp-fine", "critic_warmup": 3})
+    train(cfg, tmp_path / "whole", progress=False)
+    train(Config(**{**cfg.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
+    train(cfg, tmp_path / "split", resume=True, progress=False)
+    a, b = (torch.load(p / "latest.pt", weights_only=True) for p in (tmp_path / "whole", tmp_path / "split"))
+    for key in a["model"]:
+        torch.testing.assert_close(a["model"][key], b["model"][key], rtol=0, atol=0)
+    bc = [float(r["value"]) for r in csv.DictReader(open(tmp_path / "whole" / "scalars.csv")) if r["name"] == ac.BC_NAME]
+    assert len(bc) >= 2 and all(np.isfinite(bc))

@@ -233,7 +233,7 @@ def test_on_a_sequence_the_actors_loss_reaches_the_actor_alone_and_the_critics_t
     keep[0, :2] = False  # a burn-in
     z = net.unroll(frames, speeds, controls, torch.randn(3, 32))[:, :-1][keep]  # [N, H]
     frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
-    (-torch.min(*ac._critic_with(net, frozen, z.detach())).mean()).backward(retain_graph=True)
+    (-torch.min(*ac._critic_with(net, frozen, z.detach(), net.actor(z.detach()))).mean()).backward(retain_graph=True)
     assert {k for k, p in net.named_parameters() if p.grad is not None} == {"fc.0.weight", "fc.0.bias", "fc.2.weight", "fc.2.bias"}
     net.zero_grad(set_to_none=True)
     q1, q2 = net.critic(z, torch.zeros(len(z)))
