@@ -259,10 +259,11 @@ def _refuse_resume_changes(ctx: click.Context, cfg: Config, run: Path) -> None:
 @config_options
 def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, ray_address: str | None, actor_cpus: float,
           max_restarts: int, **values: Any) -> None:  # fmt: skip
-    """Train a Double-DQN policy from camera frames against spawned simulator servers.
+    """Train a policy from camera frames (Double DQN; DrQ-v2 with --action continuous)
+    against spawned simulator servers.
 
     Writes config.json, scalars.csv, latest.pt and best.pt (the best evaluation's policy)
-    in OUT. Why the defaults are what they are: docs/training.md, "Options".
+    in OUT. Why the defaults: docs/training.md, "Options".
     """
     cfg = make_config(values)
     if ray_address is not None and not use_ray:

@@ -111,15 +111,15 @@ class EnvironmentSettings:
     eco_weights: tuple[float, ...] = ECO_WEIGHTS
     """Eco reward's weights: gap, energy, comfort, closing."""
     action: str = "levels"
-    """21 "levels", force "steps", rate-limited "ramp"/"ramp-fine" targets or "continuous" (DrQ-v2)."""
+    """The force: 21 levels, steps, ramp targets, or continuous (DrQ-v2)."""
     train_trajectories: tuple[str, ...] = ("random",)
-    """Training leads, one drawn per episode: "random" or lead scenarios (repeat to weight)."""
+    """Leads drawn per episode: random, scenarios (repeat to weight)."""
     train_traffic: int = TRAFFIC_PER_LANE
     """Cars per side lane in training."""
     train_sun_elevation: tuple[float, ...] = SUN_ELEVATION
-    """[rad] LOW,HIGH of the sun's height in training."""
+    """[rad] LOW,HIGH of the training sun's height."""
     crash_reward: float | None = None
-    """Reward of a collision, in [-10, 0]; unset: the reward's own."""
+    """Reward of a collision, in [-10, 0] (unset: the reward's)."""
     episode_seconds: float | None = 60.0
     """[s] episode length (0: all)."""
 
@@ -132,11 +132,11 @@ class DQNSettings:
     """The Double DQN's schedule, sizes and rates."""
 
     total_steps: int = 200_000
-    """Environment steps (0.1 s each) to train for."""
+    """Environment steps to train (0.1 s each)."""
     seed: int = 1
     """Seed of every RNG of the run."""
     schedule: str = "serial"
-    """"serial": act, then update; "parallel": update on a second thread."""
+    """parallel: update on a second thread while acting."""
     learning_rate: float = 1e-4
     """Adam step size."""
     adam_eps: float = 1.5e-4
@@ -164,13 +164,13 @@ class DQNSettings:
     n_step: int = 1
     """Steps of the n-step return."""
     absorbing_terminal: bool = True
-    """Value a termination as its reward forever, r / (1 - γ), not 0."""
+    """A termination's value: r / (1 - γ), not 0."""
     checkpoint_every: int = 10_000
     """Steps between checkpoints."""
     init_from: str | None = None
     """Checkpoint whose weights start the run."""
     torch_threads: int = 2
-    """CPU threads of torch; OMP_NUM_THREADS, when set, caps it."""
+    """Torch CPU threads (at most OMP_NUM_THREADS)."""
     cuda: bool = True
     """Use CUDA if available."""
     log_every: int = 500
@@ -189,7 +189,7 @@ class NetworkSettings:
     stack_stride: int = 2
     """Steps between stacked frames."""
     preroll: bool = False
-    """Start episodes after the camera pre-roll, as vacc drive does."""
+    """Start after the camera pre-roll, as vacc drive."""
     speed_scale: float = 30.0
     """[m/s] host speed divisor."""
     conv_channels: tuple[int, ...] = (16, 32, 64)
@@ -216,7 +216,7 @@ class EvaluationSettings:
     eval_every: int = 25_000
     """Steps between evaluations (0: only at the end)."""
     eval_trajectories: tuple[str, ...] = TEST_TRAJECTORIES
-    """Evaluation episodes that pick best.pt: test-N, random:SEED or SCENARIO[:SEED]."""
+    """Episodes that pick best.pt: test-N, random:SEED, SCENARIO[:SEED]."""
     eval_seconds: float | None = None
     """[s] evaluation length (0: all)."""
     keep_evals: bool = False
@@ -231,8 +231,7 @@ class TeacherSettings:
     """The teacher (DAgger) run's labels."""
 
     teacher: str = "none"
-    """Labels the states (DAgger): none (Double DQN), policy or an ACC law (python -m
-    agent_client.rl.teachers)."""
+    """DAgger's labels: none, policy or an ACC law (agent_client.rl.teachers)."""
     teacher_policy: str | None = None
     """(--teacher policy) the teacher's checkpoint."""
     teacher_brake: float = 3.5
@@ -257,7 +256,7 @@ class AuxiliarySettings:
     aux_closing: float = 0.0
     """Weight of a closing-speed head (0: off)."""
     brake_margin: float = 0.0
-    """(Double DQN) weight of a loss ranking the full brake first in emergencies (0: off)."""
+    """(DQN) weight of a full-brake-first loss in emergencies."""
 
     def __post_init__(self) -> None:
         check_auxiliary(self)
@@ -268,15 +267,15 @@ class DecisionSettings:
     """How the outputs become the force."""
 
     decision: str = "argmax"
-    """"argmax", or "mean" (the softmax-weighted target; teacher and ramp action)."""
+    """mean: the softmax-weighted target (teacher, ramp)."""
     decision_temperature: float = 2.0
     """(mean) softmax temperature."""
     decision_brake_share: float = 1.0
     """(mean) softmax share at which the full brake acts at once."""
     decision_brake_confirm: int = 1
-    """(mean) decisions in a row the brake share must hold."""
+    """(mean) decisions in a row at the share."""
     decision_full_brake_confirm: int = 1
-    """(mean) decisions in a row the full brake argmax must hold."""
+    """(mean) decisions in a row at a full-brake argmax."""
     decision_deadband: float = 0.0
     """(mean) hold the force where the target is this close (0: off)."""
     decision_smoothing: float = 1.0
@@ -320,12 +319,9 @@ class ActorCriticSettings:
     critic_warmup: int = 0
     """(continuous) first updates in which only the critic learns."""
     bc_weight: float = 0.0
-    """(continuous) TD3+BC: the weight of the actor's squared distance to the init_from
-    student's decision, beside its value over the values' mean magnitude (0: DrQ-v2's -Q)."""
+    """(continuous) TD3+BC pull toward init_from's decision."""
     actor_levels: str = "none"
-    """(continuous) the actor's output: none, DrQ-v2's tanh; or a ramp action type, the
-    softmax mean of its levels at decision_temperature, as a DQN student's mean decision (from
-    init_from such a student the actor starts as its decision, exactly)."""
+    """(continuous) a tanh, or a ramp type's softmax mean."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
