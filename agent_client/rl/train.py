@@ -181,8 +181,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 taken, episode_return, episode_len = [], 0.0, 0
             done = False
             while not done and state.global_step < cfg.total_steps:  # a stop waits for the episode's end
-                epsilon = linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, state.global_step)
-                decision, stored = _choose(cfg, learner, env, obs, info, epsilon, state.global_step)
+                exploring = _exploration(cfg, state.global_step)  # ε, or the actor-critic's noise std
+                decision, stored = _choose(cfg, learner, env, obs, info, exploring, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
                 taken.append(list(decision))
                 memory.add(stored, reward, terminated, truncated, obs, info["gap"], policy.state())  # a recurrent state: the one before obs
@@ -195,7 +195,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                     learner.train_step(memory, step)
                 if step % cfg.target_sync_every == 0:
                     learner.sync_target()
-                bar.update(step, _exploration(cfg, step), float(np.mean(recent)) if recent else float("nan"))
+                bar.update(step, exploring, float(np.mean(recent)) if recent else float("nan"))
             if not done:  # cut by the step budget: kept, so that a larger budget finishes it
                 state.cut = {"options": options, "taken": taken, "return": episode_return, "length": episode_len, "policy": policy.episode_state(),
                              "eval_due": bool(cfg.eval_trajectories) and state.global_step >= grid.next_eval}  # fmt: skip
@@ -204,7 +204,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 recent.append(episode_return)
                 for name, value in (("episodic_return", episode_return), ("episodic_length", episode_len),
                                     ("mean_reward", episode_return / max(episode_len, 1)), ("SPS", sps()),
-                                    ("noise_std", noise_std(cfg, step - 1)) if learner.continuous else ("epsilon", epsilon)):  # fmt: skip
+                                    ("noise_std" if learner.continuous else "epsilon", exploring)):  # fmt: skip
                     log.add(f"charts/{name}", value, state.global_step)
             state.recent_returns = list(recent)
             if STOP.is_set() and state.global_step < cfg.total_steps:
@@ -250,8 +250,8 @@ def _exploration(cfg: Config, step: int) -> float:
     return noise_std(cfg, step) if is_continuous(cfg.action) else linear_schedule(cfg.start_e, cfg.end_e, cfg.exploration_steps, step)
 
 
-def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], epsilon: float, step: int) -> tuple[Decision, int | float]:
-    """The decision to take and the action to store.
+def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: dict[str, Any], exploring: float, step: int) -> tuple[Decision, int | float]:
+    """The decision to take and the action to store; ``exploring`` is :func:`_exploration` at ``step``.
 
     Actor-critic (a continuous action): the actor's target plus the scheduled Gaussian
     noise (:func:`agent_client.rl.actor_critic.explore`), stored as taken; with ``bc_steps``,
@@ -268,8 +268,8 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
             assert learner.student is not None  # loaded with the learner
             if learner.q.recurrent:
                 learner.acting_policy.target(obs)  # its state steps on every observation, whoever drives
-            return noisy(student_target(*learner.student, obs), noise_std(cfg, step), rng)
-        return explore(learner.acting_policy, obs, noise_std(cfg, step), rng)
+            return noisy(student_target(*learner.student, obs), exploring, rng)
+        return explore(learner.acting_policy, obs, exploring, rng)
     # a recurrent student's state steps on every observation, whoever drives (it draws nothing)
     own = learner.act(obs) if learner.q.recurrent else None
     if isinstance(learner.teacher, PolicyTeacher):  # a network on the same observation: distillation
@@ -280,7 +280,7 @@ def _choose(cfg: Config, learner: Learner, env: Any, obs: dict[str, Any], info: 
         label = env.actions.imitate(learner.teacher(info), cfg.teacher_brake)  # privileged: reads the gap, never the network
         if rng.random() < linear_schedule(1.0, 0.0, cfg.teacher_steps, step):
             return Decision(label), label
-    decision = Decision(int(rng.integers(env.action_space.n))) if rng.random() < epsilon else (own if own is not None else learner.act(obs))
+    decision = Decision(int(rng.integers(env.action_space.n))) if rng.random() < exploring else (own if own is not None else learner.act(obs))
     return decision, (label if learner.teacher is not None else decision.action)
 
 
