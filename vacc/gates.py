@@ -22,6 +22,11 @@ last-bit difference in a Q-value can move a decision. The report names the path.
 
 ``--quick`` (tests only) drives 2 s of each run, the first seed of each set and the
 first two safety scenarios: it checks that the gates run, not that a model passes.
+
+``--skip safety`` (or ``random``) leaves a set of runs out, for a comparison that needs only the
+others (an ablation over seeds: the safety suite is 100 runs a model). The report names what it
+skipped, its verdict is over the checks it ran, and ``vacc seeds`` summarises such reports only
+with reports that skipped the same.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ __all__ = ["Check", "Measure", "QUICK_SECONDS", "VEHICLES", "evaluate_gates", "g
 
 QUICK_SECONDS = 2.0  # [s] each run of --quick
 QUICK_SCENARIOS = 2  # safety scenarios --quick drives
+PARTS = ("tests", "safety", "random")  # the sets of runs; energy and comfort are scored on the tests' runs
 VEHICLES = {"ice": "corolla", "ev": "leaf"}  # the energy model of each scenario, as vacc evaluate's default
 
 
@@ -170,8 +176,10 @@ def _random_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int
     return checks, _measures("random", scores, acc, ENERGY[recipe.scenario][0])
 
 
-def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool = False, jobs: int = 1) -> dict[str, Any]:
-    """Drive ``checkpoint`` through every gate of ``recipe``; write ``out/gates.json``.
+def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool = False, jobs: int = 1,
+                   skip: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
+    """Drive ``checkpoint`` through every gate of ``recipe`` but the sets of runs in ``skip``
+    (:data:`PARTS`); write ``out/gates.json``.
 
     Returns:
         The report: recipe, its digest, the checkpoint and its SHA-256, each check, and
@@ -183,13 +191,18 @@ def evaluate_gates(recipe: Recipe, checkpoint: Path, out: Path, *, quick: bool =
     out.mkdir(parents=True, exist_ok=True)
     checks: list[Check] = []
     measures: list[Measure] = []
-    for part in (_test_checks, _safety_checks, _random_checks):
+    unknown = sorted(set(skip) - set(PARTS))
+    if unknown or set(skip) >= set(PARTS):
+        raise ValueError(f"skip: {unknown or list(skip)}: give some of {', '.join(PARTS)}, not all")
+    for name, part in zip(PARTS, (_test_checks, _safety_checks, _random_checks), strict=True):
+        if name in skip:
+            continue
         c, m = part(recipe, checkpoint, out, quick, jobs)
         checks += c
         measures += m
     report = {
         "recipe": recipe.name, "recipe_digest": recipe.digest, "checkpoint": str(checkpoint), "sha256": file_sha256(checkpoint),
-        "quick": quick, "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
+        "quick": quick, "skipped": [p for p in PARTS if p in skip], "checks": [c._asdict() for c in checks], "passed": all(c.passed for c in checks),
         "measures": [m._asdict() for m in measures], "cpu_path": pinned_path(),
         "kernels": describe(with_gpu=False).get("kernels"),  # torch's name for them; the run workers fork from here
     }  # fmt: skip
@@ -207,6 +220,7 @@ def gate_table(report: dict[str, Any]) -> str:
     verdict = "PASS" if report["passed"] else "FAIL"
     note = " (--quick: short runs, figures not meaningful)" if report["quick"] else ""
     note += f" on {report['cpu_path']} kernels" if "cpu_path" in report else ""
+    note += "".join(f"; {p} not checked (--skip)" for p in report.get("skipped", []))
     lines.append(f"\n{report['recipe']}: {verdict}, {n}/{len(report['checks'])} checks passed{note}")
     return "\n".join(lines)
 
@@ -216,10 +230,11 @@ def gate_table(report: dict[str, Any]) -> str:
 @click.option("--checkpoint", default=None, type=click.Path(dir_okay=False, exists=True), help="The checkpoint to check. Default: the shipped <models>/<name>.pt (" + MODELS_DEFAULT + ").")
 @click.option("--out", required=True, type=click.Path(file_okay=False), help="Folder for gates.json and the run logs.")
 @click.option("--quick", is_flag=True, help="Short runs, one seed, two safety scenarios: checks the gates run (tests), not the model.")
+@click.option("--skip", multiple=True, type=click.Choice(PARTS[1:]), help="Leave out this set of runs (repeatable): the verdict is over the checks run, and the report says so.")
 @click.option("--jobs", default=os.cpu_count() or 1, show_default=True, type=click.IntRange(1, 64), help="Runs in parallel.")
 @click.option("--cpu-path", type=click.Choice(list(CPU_PATHS)), default=None,
               help="The CPU kernels the runs drive on. Default: the recipe's, as `vacc reproduce` checks its model (a last-bit difference can move a decision).")  # fmt: skip
-def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, jobs: int, cpu_path: str | None) -> None:
+def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, skip: tuple[str, ...], jobs: int, cpu_path: str | None) -> None:
     """Check a checkpoint against the gates of a recipe (a model name, or recipes/NAME.toml):
     print a pass/fail table with the figures and write OUT/gates.json. Exits 1 if a gate fails."""
     try:
@@ -233,7 +248,7 @@ def gates(model_or_recipe: str, checkpoint: str | None, out: str, quick: bool, j
     ckpt = Path(checkpoint) if checkpoint else models_dir() / f"{recipe.name}.pt"
     if not ckpt.is_file():
         raise click.ClickException(f"{ckpt}: no such checkpoint; give --checkpoint")
-    report = evaluate_gates(recipe, ckpt, Path(out), quick=quick, jobs=jobs)
+    report = evaluate_gates(recipe, ckpt, Path(out), quick=quick, jobs=jobs, skip=skip)
     click.echo(gate_table(report))
     click.echo(f"Wrote {out}/gates.json")
     if not report["passed"]:

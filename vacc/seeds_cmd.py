@@ -12,7 +12,11 @@ Each ``gates.json`` is one training seed's model checked against its recipe
   suite's closest gap.
 
 ``--across-recipes`` reads summaries that ``--json`` wrote, one per recipe, and prints one row
-each with the pass share and the key figures: the table of ``docs/results.md``.
+each with the pass share and the key figures: the table of ``docs/results.md``. ``--name``
+labels a summary's row (an ablation of one recipe: each variant its own summary).
+
+Reports that skipped a set of runs (``vacc gates --skip``) are summarised only with reports that
+skipped the same; their pass share is over the checks they ran, and the table says so.
 
 Agarwal et al. 2021: with 3-10 runs, report the IQM and its interval, not a best seed.
 """
@@ -72,6 +76,10 @@ def read_reports(paths: Sequence[Path]) -> list[dict[str, Any]]:
         reports.append({**report, "path": str(path)})
     first = reports[0]
     for r in reports[1:]:
+        if r.get("skipped", []) != first.get("skipped", []):
+            raise click.ClickException(f"{r['path']}: skipped {r.get('skipped', []) or 'nothing'}, but {first['path']} skipped "
+                                       f"{first.get('skipped', []) or 'nothing'}: summarise reports of the same checks")  # fmt: skip
+    for r in reports[1:]:
         if (r["recipe"], r["recipe_digest"]) != (first["recipe"], first["recipe_digest"]):
             raise click.ClickException(
                 f"{r['path']}: recipe {r['recipe']} ({r['recipe_digest'][:12]}), but {first['path']} is of "
@@ -105,11 +113,11 @@ def _what(check: dict[str, Any]) -> str:
     return LEGACY_DETAIL.sub("", check["what"])
 
 
-def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def seed_summary(reports: Sequence[dict[str, Any]], name: str | None = None) -> dict[str, Any]:
     """Pass shares and IQM intervals over the reports (one per seed).
 
     A check missing from some report (a recipe's gates changed) is summarised over the
-    reports that have it; ``n`` says how many.
+    reports that have it; ``n`` says how many. ``name`` labels the summary (default: the recipe's).
     """
     rows: dict[tuple[str, str], dict[str, Any]] = {}
     for r in reports:
@@ -125,7 +133,7 @@ def seed_summary(reports: Sequence[dict[str, Any]]) -> dict[str, Any]:
         pooled = {"what": "test-1..4 gap RMSE (m), stratified by trajectory", "iqm": est.value, "low": est.low, "high": est.high, "n": est.n}
     passed_all = sum(all(c["passed"] for c in r["checks"]) for r in reports)
     kernels = Counter(r.get("cpu_path", LEGACY_CPU_PATH) for r in reports)
-    return {"recipe": reports[0]["recipe"], "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled,
+    return {"recipe": reports[0]["recipe"], "name": name or reports[0]["recipe"], "skipped": reports[0].get("skipped", []), "seeds": len(reports), "passed_every_gate": passed_all, "checks": out, "pooled_tests": pooled,
             "measures": _measure_rows(reports), "cpu_paths": dict(sorted(kernels.items()))}  # fmt: skip
 
 
@@ -150,7 +158,9 @@ def _interval(row: dict[str, Any] | None, decimals: int, percent: bool = False) 
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as Markdown: the pass share, then one row per check."""
     ci = f"{CONFIDENCE:.0%}"
-    lines = [f"{s['recipe']}: {s['passed_every_gate']} of {s['seeds']} seeds pass every gate", ""]
+    skipped = "".join(f"; {p} not checked" for p in s.get("skipped", []))
+    label = s["recipe"] if s.get("name", s["recipe"]) == s["recipe"] else f"{s['name']} ({s['recipe']})"
+    lines = [f"{label}: {s['passed_every_gate']} of {s['seeds']} seeds pass every gate{' checked' if skipped else ''}{skipped}", ""]
     paths = s.get("cpu_paths", {})
     if len(paths) > 1:  # a last-bit difference can move a decision: say so beside the figures
         mixed = ", ".join(f"{n} on {p}" for p, n in paths.items())
@@ -192,7 +202,8 @@ def recipes_table(paths: Sequence[Path]) -> str:
             seeds = str(s["seeds"]) + ("" if measured == s["seeds"] else f" ({measured} measured)")
             if len(s.get("cpu_paths", {})) > 1:  # absent from summaries before 2026-12-06
                 seeds += " (" + ", ".join(f"{n} {p}" for p, n in s["cpu_paths"].items()) + " kernels)"
-            cells = [s["recipe"], seeds, f"{s['passed_every_gate']} of {s['seeds']}", _interval(s["pooled_tests"], 2)]
+            passed = f"{s['passed_every_gate']} of {s['seeds']}" + "".join(f" ({p} not checked)" for p in s.get("skipped", []))
+            cells = [s.get("name", s["recipe"]), seeds, passed, _interval(s["pooled_tests"], 2)]
             cells += [_interval(m, decimals, percent) for m, (_, _, decimals, percent) in zip(shown, RECIPE_COLUMNS, strict=True)]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise click.ClickException(f"{path}: not a summary of `vacc seeds --json` ({exc})") from None
@@ -203,17 +214,18 @@ def recipes_table(paths: Sequence[Path]) -> str:
 @click.command("seeds")
 @click.argument("reports", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Also write the summary as JSON.")
+@click.option("--name", default=None, help="The summary's name, its row in --across-recipes (default: the recipe's): e.g. an ablation's variant.")
 @click.option("--across-recipes", is_flag=True, help="The arguments are summaries that --json wrote, one per recipe: print one row each (docs/results.md's table).")
-def seeds(reports: tuple[str, ...], json_out: str | None, across_recipes: bool) -> None:
+def seeds(reports: tuple[str, ...], json_out: str | None, name: str | None, across_recipes: bool) -> None:
     """Summarise one recipe's gate reports over training seeds (each a gates.json of
     `vacc gates` or `vacc reproduce --seed N`): the share of seeds that pass every gate,
     and each check's interquartile mean with a 95 % bootstrap interval."""
     if across_recipes:
-        if json_out is not None:
-            raise click.UsageError("--json writes one recipe's summary; --across-recipes reads them")
+        if json_out is not None or name is not None:
+            raise click.UsageError("--json and --name make one recipe's summary; --across-recipes reads them")
         click.echo(recipes_table([Path(p) for p in reports]))
         return
-    summary = seed_summary(read_reports([Path(p) for p in reports]))
+    summary = seed_summary(read_reports([Path(p) for p in reports]), name)
     click.echo(summary_table(summary))
     if json_out is not None:
         Path(json_out).write_text(json.dumps(summary, indent=1) + "\n")

@@ -74,3 +74,20 @@ def test_vacc_gates_drives_its_runs_on_the_recipes_kernels(tmp_path):
     assert done.returncode in (0, 1) and "on avx2 kernels" in done.stdout, done.stderr[-2000:]
     report = json.loads((tmp_path / "gates.json").read_text())
     assert report["cpu_path"] == "avx2" and report["kernels"] in ("AVX2", "DEFAULT")
+
+
+@pytest.mark.slow
+def test_vacc_gates_skips_a_set_of_runs_and_says_so(tmp_path):
+    """--skip safety --skip random: only the tests' runs (and their energy and comfort), the
+    report and the verdict line name what was left out."""
+    import json
+
+    done = subprocess.run([sys.executable, "-m", "vacc", "gates", "ice-gap", "--quick", "--skip", "safety", "--skip", "random", "--jobs", "1",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert done.returncode in (0, 1) and "safety not checked (--skip); random not checked (--skip)" in done.stdout, done.stderr[-2000:]
+    report = json.loads((tmp_path / "gates.json").read_text())
+    assert report["skipped"] == ["safety", "random"] and {c["gate"] for c in report["checks"]} <= {"tests", "energy", "comfort"}
+    assert sorted(p.name for p in (tmp_path / "logs").glob("*.csv")) == sorted(f"{m}-test-{i}.csv" for m in ("acc", "ddqn") for i in range(1, 5))
+    assert not (tmp_path / "random").exists()
+    bad = subprocess.run([sys.executable, "-m", "vacc", "gates", "ice-gap", "--skip", "tests", "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "'tests' is not one of 'safety', 'random'" in bad.stderr

@@ -137,3 +137,27 @@ def test_the_same_reports_in_another_order_give_the_same_summary(tmp_path):
     a = CliRunner().invoke(main, ["seeds", *paths])
     b = CliRunner().invoke(main, ["seeds", *reversed(paths)])
     assert a.exit_code == b.exit_code == 0 and a.output == b.output
+
+
+def test_reports_that_skipped_runs_are_summarised_only_together_and_named(tmp_path):
+    """An ablation's reports (`vacc gates --skip safety`): their pass share is over the checks
+    run and says so; a full report is refused beside them; --name labels the row."""
+    def skipped(seed: int) -> Path:
+        path = _report(tmp_path / "abl", seed, skipped=["safety"])
+        report = json.loads(path.read_text())
+        report["checks"] = [c for c in report["checks"] if c["gate"] != "safety"]
+        path.write_text(json.dumps(report))
+        return path
+
+    paths = [str(skipped(s)) for s in RMSE]
+    summary = tmp_path / "noaug.json"
+    done = CliRunner().invoke(main, ["seeds", *paths, "--name", "no-aug", "--json", str(summary)])
+    assert done.exit_code == 0, done.output
+    assert done.output.startswith("no-aug (ice-gap): 2 of 3 seeds pass every gate checked; safety not checked")
+    row = CliRunner().invoke(main, ["seeds", "--across-recipes", str(summary)]).output.splitlines()[2]
+    assert row.startswith("| no-aug | 3 (0 measured) | 2 of 3 (safety not checked) |"), row
+    full = _report(tmp_path / "full", 0, sha256="f" * 64)
+    mixed = CliRunner().invoke(main, ["seeds", *paths, str(full)])
+    assert mixed.exit_code == 1 and "summarise reports of the same checks" in mixed.output and mixed.output.count("\n") == 1, mixed.output
+    both = CliRunner().invoke(main, ["seeds", "--across-recipes", str(summary), "--name", "x"])
+    assert both.exit_code == 2 and "--across-recipes reads them" in both.output
