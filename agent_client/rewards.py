@@ -25,6 +25,8 @@ figure. Force term: a triangle of +10 at u = 0 falling to 0 at |u| = 0.3.
   :data:`ECO_WEIGHTS` and normalised by their sum so it stays in [-1, 1]. The gap and
   the lead's speed are privileged: they shape training, as the paper's gap term does, and
   never reach the network.
+* ``eco-draw`` reward: the eco reward with the EV's energy term over the power drawn only,
+  0 while it regenerates (the ICE's is the eco reward): see :data:`REWARDS`.
 
 Every reward takes (gap, u) and, as keywords, the host's speed ``v`` [m/s], its
 acceleration ``a`` [m/s^2] over the step, the acceleration ``a_prev`` of the step
@@ -41,6 +43,7 @@ regenerates.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -54,7 +57,7 @@ from protocol.constants import CONTROL_PERIOD, DESIRED_GAP
 __all__ = [
     "CONTROL_PERIOD", "GAP_POINTS", "FORCE_HALF_WIDTH", "ECO_WEIGHTS", "ECO_TIME_GAP", "gap_term", "eco_desired_gap", "force_term", "energy_term",
     "comfort_term", "closing_term", "check_eco_weights", "EcoTerms", "eco_terms",
-    "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS",
+    "gap_reward", "force_reward", "eco_reward", "make_reward", "REWARDS", "ECO_REWARDS",
     "gap_reward_terms", "force_reward_terms", "eco_reward_terms", "make_reward_terms", "REWARD_TERMS",
 ]  # fmt: skip
 
@@ -99,16 +102,17 @@ ECO_WEIGHT_NAMES = ("gap", "energy", "comfort", "closing")
 ECO_TIME_GAP = 2.0  # [s] 55 m at 27.5 m/s, the ICE leads' lower band: the paper's target on its own roads
 
 
-def energy_term(v: float, a: float, scenario: str) -> float:
+def energy_term(v: float, a: float, scenario: str, regen: bool = True) -> float:
     """The host's instantaneous energy use over its full-throttle value, in [-1, 1].
 
     ICE: CMEM fuel rate (>= 0; fuel cut when coasting). EV: eq. 6 battery power, negative
-    while regenerating.
+    while regenerating; with ``regen`` False the power drawn only (0 while regenerating).
     """
     va, aa = np.array([v], float), np.array([a], float)
     if scenario == "ice":
         return float(min(1.0, cmem_rates(va, aa, COROLLA_2022).fuel_g_s[0] / FUEL_FULL))
-    return float(np.clip(eq6_power_kw(va, aa)[0] / POWER_FULL, -1.0, 1.0))
+    power = float(np.clip(eq6_power_kw(va, aa)[0] / POWER_FULL, -1.0, 1.0))
+    return power if regen else max(0.0, power)
 
 
 def comfort_term(a: float, a_prev: float, dt: float = CONTROL_PERIOD) -> float:
@@ -140,18 +144,19 @@ class EcoTerms(NamedTuple):
 
 
 def eco_terms(
-    gap: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
+    gap: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice", regen: bool = True,
 ) -> EcoTerms:
     """The eco reward's terms, unweighted and unsigned, for a gap [m], the host's speed
     ``v`` [m/s] and accelerations ``a``, ``a_prev`` [m/s^2], the lead's speed ``v_lead``
-    [m/s] (None: no closing term) and the host of ``scenario`` ("ice" or "ev").
+    [m/s] (None: no closing term) and the host of ``scenario`` ("ice" or "ev"); ``regen``
+    False: the EV's energy term counts the power drawn only (``eco-draw``).
 
     The one place they are computed: the eco reward, its named terms and
     ``scripts/reward_ablation.py`` (which scores run logs where no env runs) all read them.
     """
     return EcoTerms(
         gap=gap_term(gap, eco_desired_gap(v)),
-        energy=energy_term(v, a, scenario),
+        energy=energy_term(v, a, scenario, regen),
         comfort=comfort_term(a, a_prev),
         closing=0.0 if v_lead is None else closing_term(v, v_lead),
     )
@@ -169,12 +174,12 @@ def force_reward(gap: float, u: float, **_: Any) -> float:
 
 def eco_reward(
     gap: float, u: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
-    weights: tuple[float, ...] = ECO_WEIGHTS, **_: Any,
+    weights: tuple[float, ...] = ECO_WEIGHTS, regen: bool = True, **_: Any,
 ) -> float:
     """Eco reward in [-1, 1]: gap term, minus energy, jerk and closing speed (see the module
-    docstring). Without ``v_lead`` the closing term is 0."""
+    docstring). Without ``v_lead`` the closing term is 0; ``regen`` as :func:`eco_terms`."""
     w_gap, w_energy, w_comfort, w_closing = weights
-    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario)
+    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario, regen=regen)
     # This expression, in this order, is the reward trained models were paid: keep it bit for bit.
     total = w_gap * t.gap / 10.0 - w_energy * t.energy - w_comfort * t.comfort - w_closing * t.closing
     return total / sum(weights)
@@ -192,20 +197,25 @@ def force_reward_terms(gap: float, u: float, **_: Any) -> dict[str, float]:
 
 def eco_reward_terms(
     gap: float, u: float, *, v: float, a: float, a_prev: float, v_lead: float | None = None, scenario: str = "ice",
-    weights: tuple[float, ...] = ECO_WEIGHTS, **_: Any,
+    weights: tuple[float, ...] = ECO_WEIGHTS, regen: bool = True, **_: Any,
 ) -> dict[str, float]:
     """:func:`eco_reward` by term (:data:`ECO_WEIGHT_NAMES`), each signed, weighted and
     over the weights' sum; their sum is the reward."""
-    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario)
+    t = eco_terms(gap, v=v, a=a, a_prev=a_prev, v_lead=v_lead, scenario=scenario, regen=regen)
     signed = (t.gap / 10.0, -t.energy, -t.comfort, -t.closing)
     total = sum(weights)
     return {name: w * x / total for name, w, x in zip(ECO_WEIGHT_NAMES, weights, signed, strict=True)}
 
 
-REWARDS: dict[str, Callable[..., float]] = {"gap": gap_reward, "force": force_reward, "eco": eco_reward}
+# eco-draw: the EV earns nothing while it regenerates. A discounted return (gamma 0.99, ~10 s)
+# values a regenerating brake now over the acceleration it forces later, so an actor-critic on
+# "eco" learned to brake and re-accelerate (docs/training.md); the ICE's term is the same in both.
+REWARDS: dict[str, Callable[..., float]] = {"gap": gap_reward, "force": force_reward, "eco": eco_reward,
+                                            "eco-draw": partial(eco_reward, regen=False)}  # fmt: skip
 REWARD_TERMS: dict[str, Callable[..., dict[str, float]]] = {
-    "gap": gap_reward_terms, "force": force_reward_terms, "eco": eco_reward_terms,
+    "gap": gap_reward_terms, "force": force_reward_terms, "eco": eco_reward_terms, "eco-draw": partial(eco_reward_terms, regen=False),
 }  # fmt: skip
+ECO_REWARDS = ("eco", "eco-draw")  # weighted by eco_weights
 assert REWARD_TERMS.keys() == REWARDS.keys()
 
 
@@ -218,7 +228,7 @@ def _bind(table: dict[str, Callable[..., Any]], name: str, scenario: str, eco_we
     if name not in table:
         raise ValueError(f"reward {name!r} is not one of {sorted(table)}")
     fn = table[name]
-    if name != "eco":
+    if name not in ECO_REWARDS:
         return fn
     weights = tuple(float(w) for w in eco_weights)
     if (why := check_eco_weights(weights)) is not None:

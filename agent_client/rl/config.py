@@ -103,7 +103,7 @@ class EnvironmentSettings:
     """The reward, scenario, action and training episodes."""
 
     reward: str = "gap"
-    """"gap" (Table 1), "force" or "eco" (minus energy, jerk)."""
+    """Table 1 (gap, force); eco: minus energy, jerk; eco-draw: no regen credit."""
     scenario: str = "ice"
     """"ice" (eq. 7 lead trajectories) or "ev" (real traces)."""
     set_speed: float = DEFAULT_SET_SPEED

@@ -115,7 +115,7 @@ def test_reward_terms_sum_to_the_reward(scenario, weights):
     from agent_client.rewards import ECO_WEIGHT_NAMES, REWARDS, make_reward, make_reward_terms
 
     extra = {} if weights is None else {"eco_weights": weights}
-    names = {"gap": {"gap"}, "force": {"gap", "force"}, "eco": set(ECO_WEIGHT_NAMES)}
+    names = {"gap": {"gap"}, "force": {"gap", "force"}, "eco": set(ECO_WEIGHT_NAMES), "eco-draw": set(ECO_WEIGHT_NAMES)}
     rng = np.random.default_rng(1)
     for name in REWARDS:
         fn, terms_fn = make_reward(name, scenario, **extra), make_reward_terms(name, scenario, **extra)
@@ -172,3 +172,23 @@ def test_reward_ablation_scores_a_log_as_the_eco_reward_pays_it(tmp_path):
                 paid.append(fn(g, 0.0, v=v, a=a, a_prev=a_prev, v_lead=vl))
                 a_prev = a
             assert float(np.dot(script.mean_terms(log, scenario), w) / sum(w)) == pytest.approx(np.mean(paid), rel=1e-12)
+
+
+def test_eco_draw_pays_the_ev_nothing_for_regenerating_and_is_eco_elsewhere():
+    """eco-draw: a regenerating brake earns the EV nothing (the energy term is 0, not
+    negative); drawing power costs as in eco, and the ICE's reward is eco's to the bit."""
+    from agent_client.rewards import make_reward, make_reward_terms
+
+    kw = {"v": 30.0, "a_prev": 0.0, "v_lead": 29.0}
+    eco, draw = make_reward("eco", "ev"), make_reward("eco-draw", "ev")
+    braking, cruising = {**kw, "a": -2.0}, {**kw, "a": 0.5}
+    assert draw(50.0, -0.5, **braking) < eco(50.0, -0.5, **braking)  # eco pays the regeneration
+    assert make_reward_terms("eco-draw", "ev")(50.0, -0.5, **braking)["energy"] == 0.0
+    assert draw(50.0, 0.2, **cruising) == eco(50.0, 0.2, **cruising)
+    terms = make_reward_terms("eco-draw", "ev")(50.0, -0.5, **braking)
+    assert sum(terms.values()) == pytest.approx(draw(50.0, -0.5, **braking))
+    for a in (-3.0, -1.0, 0.0, 1.0, 3.0):
+        step = {**kw, "a": a}
+        assert make_reward("eco-draw", "ice")(48.0, 0.1, **step) == make_reward("eco", "ice")(48.0, 0.1, **step)
+    with pytest.raises(ValueError, match="eco weights"):
+        make_reward("eco-draw", "ev", (0.0, 1.0, 1.0, 1.0))
