@@ -71,6 +71,7 @@ UNIT = {"ev": "kJ/mi", "ice": "g/mi"}
 TARGET_RMSE = {"ev": 5.1, "ice": 3.4}  # [m] issue #15's gap RMSE bound on each episode
 LAMS = (0.001, 0.003, 0.01, 0.03, 0.1)
 COPY_LAGS = (0.0, 0.5, 1.0)  # [s] how late the lead copies see the lead
+LIMITS = [0.0, 12.0, 0.88, 1.12]  # the figure's axes: gap RMSE [m], energy ratio
 COPY_SPEED_GAINS = (0.5, 1.0, 2.0)  # [1/s]
 COPY_GAP_GAINS = (0.02, 0.05, 0.1)  # [1/s^2]
 MPC_HORIZON = 10.0  # [s] how far ahead the predictive followers plan
@@ -215,8 +216,13 @@ def main() -> None:
     p.add_argument("--copy-gap-gains", default=",".join(map(str, COPY_GAP_GAINS)), help="[1/s^2] (--copy) k_g, comma-separated (default %(default)s)")
     p.add_argument("--copy-lags", default=",".join(map(str, COPY_LAGS)), help="[s] (--copy, --mpc) how late the lead copies see the lead, to the nearest control step, comma-separated (default %(default)s)")
     p.add_argument("--lams", default=",".join(map(str, LAMS)), help="preview gap weights [kJ/(m^2 s)] (EV only)")
+    p.add_argument("--limits", default=",".join(map(str, LIMITS)), help="the figure's axes X0,X1,Y0,Y1: gap RMSE [m], energy ratio (default %(default)s)")
+    p.add_argument("--replot", action="store_true", help="only redraw OUT/energy-frontier.png from OUT/summary.json (with --limits)")
     p.add_argument("models", nargs="*", metavar="NAME=CHECKPOINT", help="learned drivers to drive over UDP on the same episodes and mark")
     a = p.parse_args()
+    limits = floats(p, "--limits", a.limits)
+    if len(limits) != 4 or not (limits[0] < limits[1] and limits[2] < limits[3]):
+        p.error(f"--limits: X0,X1,Y0,Y1 with X0 < X1 and Y0 < Y1; got {a.limits!r}")
     if not a.lag >= 0.0:
         p.error(f"--lag: a lag is a time, >= 0 s; got {a.lag:g}")
     if a.mpc and a.scenario != "ev":
@@ -230,6 +236,16 @@ def main() -> None:
     episodes = [(t, 0) for t in TEST_TRAJECTORIES] if a.tests else [("random", s) for s in parse_seeds(a.seeds)]
     sc, unit = a.scenario, UNIT[a.scenario]
     out = Path(a.out or f"runs/energy-frontier-{'tests' if a.tests else 'random'}{'-ice' if sc == 'ice' else ''}")
+    where = ("EV test windows 1-4" if sc == "ev" else "ICE test-1..4") if a.tests else f"random {sc.upper()} episodes {a.seeds}"
+    ylabel = "energy / the ACC's (eq. 6)" if sc == "ev" else "fuel / the ACC's (Corolla CMEM)"
+    if a.replot:
+        try:
+            rows = json.loads((out / "summary.json").read_text())["rows"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise SystemExit(f"{out / 'summary.json'}: no summary of an earlier run to redraw ({exc})") from None
+        plot(rows, out / "energy-frontier.png", where, ylabel, TARGET_RMSE[sc], limits)
+        print(f"wrote {out / 'energy-frontier.png'}")
+        return
     out.mkdir(parents=True, exist_ok=True)
     runs = [record(t, s, out, scenario=sc) for t, s in episodes]
 
@@ -267,18 +283,17 @@ def main() -> None:
         extra = f"  accel {row['accel_range'][0]:.1f}..{row['accel_range'][1]:.1f} m/s^2" if "accel_range" in row else ""
         print(f"{row['follower']:28} gap RMSE {np.mean(row['rmse']):6.2f} / {max(row['rmse']):6.2f} m   energy {np.mean(row['energy']):7.1f} {unit}  x{row['ratio']:.3f} of the ACC{extra}")
     (out / "summary.json").write_text(json.dumps({"episodes": episodes, "rows": rows}, indent=1) + "\n")
-    where = ("EV test windows 1-4" if sc == "ev" else "ICE test-1..4") if a.tests else f"random {sc.upper()} episodes {a.seeds}"
-    plot(rows, out / "energy-frontier.png", where, "energy / the ACC's (eq. 6)" if sc == "ev" else "fuel / the ACC's (Corolla CMEM)", TARGET_RMSE[sc])
+    plot(rows, out / "energy-frontier.png", where, ylabel, TARGET_RMSE[sc], limits)
     print(f"wrote {out / 'summary.json'} and {out / 'energy-frontier.png'}")
 
 
-def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target: float) -> None:
+def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target: float, limits: list[float] = LIMITS) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(10, 4.5))
     preview = [r for r in rows if "lam" in r]
     if preview:
         ax.plot([np.mean(r["rmse"]) for r in preview], [r["ratio"] for r in preview], "k-o", label="preview (knows the lead's future)")
@@ -300,14 +315,14 @@ def plot(rows: list[dict[str, Any]], path: Path, title: str, ylabel: str, target
     ax.axhline(1.0, color="tab:red", lw=1)
     ax.annotate(f"ACC (1.8 s gap): gap RMSE {np.mean(acc['rmse']):.1f} m", (0.98, 1.0), xycoords=("axes fraction", "data"), ha="right", va="bottom", color="tab:red")
     ax.axvline(target, color="gray", lw=0.8, ls=":")
-    ax.set_xlim(0, 12)
-    ax.set_ylim(0.88, 1.12)
+    ax.set_xlim(*limits[:2])
+    ax.set_ylim(*limits[2:])
     ax.set_xlabel("gap RMSE to 55 m, mean over episodes [m]")
     ax.set_ylabel(ylabel)
     ax.set_title(f"What a 55 m follower spends: {title}")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: the points crowd the inside
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 

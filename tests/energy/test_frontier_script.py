@@ -26,6 +26,8 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(SCRIPT.pare
         ("--betas", "0.3,high", "comma-separated numbers"),
         ("--gammas", "-2", "each must be finite and >= 0"),
         ("--lams", "0.01,0", "each preview gap weight must be > 0"),
+        ("--limits", "4,2,0.9,1.1", "X0,X1,Y0,Y1 with X0 < X1 and Y0 < Y1"),
+        ("--limits", "0,12,0.9", "X0,X1,Y0,Y1"),
     ],
 )
 def test_a_bad_grid_is_refused_in_one_line(tmp_path, option, value, why):
@@ -43,6 +45,23 @@ def test_the_predictive_followers_are_refused_for_the_ice_car_in_one_line(tmp_pa
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1] == "energy_frontier.py: error: --mpc: the predictive followers plan on eq. 6, the EV's energy; use --scenario ev"
     assert not out.exists()
+
+
+def test_replot_redraws_a_runs_figure_from_its_summary_and_refuses_without_one(tmp_path):
+    """--replot drives nothing: it draws OUT/summary.json again within --limits."""
+    rows = [{"follower": "acc", "rmse": [2.8, 2.9], "energy": [68.0, 68.2], "ratio": 1.0},
+            {"follower": "law beta 0.1 gamma 0.3 lag 0.5 s", "beta": 0.1, "gamma": 0.3, "lag": 0.5, "rmse": [3.1, 3.2], "energy": [65.0, 66.0], "ratio": 0.96},
+            {"follower": "m", "model": "m.pt", "rmse": [3.7, 3.8], "energy": [66.0, 66.5], "ratio": 0.97}]  # fmt: skip
+    import json
+
+    (tmp_path / "summary.json").write_text(json.dumps({"episodes": [["test-1", 0], ["test-2", 0]], "rows": rows}))
+    cmd = [sys.executable, str(SCRIPT), "--scenario", "ice", "--tests", "--out", str(tmp_path), "--replot", "--limits", "2.6,4.2,0.94,1.02"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=ENV)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "energy-frontier.png").stat().st_size > 10_000 and not (tmp_path / "logs").exists()
+    cmd[cmd.index("--out") + 1] = str(tmp_path / "none")
+    missing = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=ENV)
+    assert missing.returncode == 1 and "summary.json: no summary of an earlier run to redraw" in missing.stderr and missing.stderr.count("\n") == 1
 
 
 def _script():
