@@ -79,17 +79,31 @@ class Measure(NamedTuple):
     figure: float
 
 
+def _mean(metrics: list[dict[str, Any]], key: str) -> float:
+    """The mean of one metric over runs; NaN if a run has none (a run that ended before the
+    settle has no comfort figure), so that its check fails and vacc seeds leaves it out."""
+    return float(np.mean([np.nan if m[key] is None else float(m[key]) for m in metrics]))
+
+
 def _measures(gate: str, model: list[dict[str, Any]], acc: list[dict[str, Any]], energy_key: str) -> list[Measure]:
     """The measures of one set of runs (each a dict of metrics): mean gap RMSE, mean ISO jerk
     share and, where the ACC drove the same runs, the energy against its."""
-    out = [
-        Measure(gate, MEAN_GAP_RMSE, float(np.mean([m["gap_rmse_55m_m"] for m in model]))),
-        Measure(gate, ISO_JERK_SHARE, float(np.mean([m["iso_jerk_window_share"] for m in model]))),
-    ]
+    out = [Measure(gate, MEAN_GAP_RMSE, _mean(model, "gap_rmse_55m_m")), Measure(gate, ISO_JERK_SHARE, _mean(model, "iso_jerk_window_share"))]
     if acc:
-        ratio = float(np.mean([m[energy_key] for m in model]) / np.mean([m[energy_key] for m in acc]))
-        out.append(Measure(gate, ENERGY_RATIO, ratio))
+        out.append(Measure(gate, ENERGY_RATIO, _mean(model, energy_key) / _mean(acc, energy_key)))
     return out
+
+
+def _comfort_checks(gate: dict[str, Any], model: list[dict[str, Any]]) -> list[Check]:
+    """The comfort gate over the model's runs (each a dict of metrics): the mean jerk RMS and
+    ISO jerk share within their bounds; a figure a run lacks fails it, said in the detail."""
+    checks = []
+    for key, name in (("jerk_rms_mps3", "max_jerk_rms_mps3"), ("iso_jerk_window_share", "max_iso_jerk_share")):
+        figure, bound = _mean(model, key), float(gate[name])
+        missing = sum(m[key] is None for m in model)
+        detail = f"{missing} run(s) ended before the settle: no figure" if missing else ""
+        checks.append(Check("comfort", f"mean {key}", figure, bound, math.isfinite(figure) and figure <= bound, detail))
+    return checks
 
 
 def _seeds(text: str, quick: bool) -> list[int]:
@@ -124,14 +138,11 @@ def _test_checks(recipe: Recipe, ckpt: Path, out: Path, quick: bool, jobs: int) 
         checks.append(Check("tests", "collisions", collisions, 0.0, collisions == 0))
     if "energy" in g:
         key = ENERGY[recipe.scenario][0]
-        ratio = float(np.mean([r.metrics[key] for r in model]) / np.mean([r.metrics[key] for r in acc]))
+        ratio = _mean([r.metrics for r in model], key) / _mean([r.metrics for r in acc], key)
         bound = float(g["energy"]["max_ratio_to_acc"])
-        checks.append(Check("energy", f"{key} / the ACC's", ratio, bound, ratio <= bound))
+        checks.append(Check("energy", f"{key} / the ACC's", ratio, bound, math.isfinite(ratio) and ratio <= bound))
     if "comfort" in g:
-        for key, name in (("jerk_rms_mps3", "max_jerk_rms_mps3"), ("iso_jerk_window_share", "max_iso_jerk_share")):
-            figure = float(np.mean([r.metrics[key] for r in model]))
-            bound = float(g["comfort"][name])
-            checks.append(Check("comfort", f"mean {key}", figure, bound, math.isfinite(figure) and figure <= bound))
+        checks += _comfort_checks(g["comfort"], [r.metrics for r in model])
     return checks, _measures("tests", [r.metrics for r in model], [r.metrics for r in acc], ENERGY[recipe.scenario][0])
 
 

@@ -78,6 +78,12 @@ def score_random_run(job: Job, vehicle: str, settle: float = SETTLE_S) -> dict[s
     return {"seed": job.seed, "traffic": job.road.traffic, "sun_elevation": list(job.road.sun_elevation), **{k: m[k] for k in keys}}
 
 
+def _figures(runs: list[dict[str, Any]], key: str) -> np.ndarray:
+    """One metric over runs, NaN where a run has none (it ended before the settle): a mean or
+    a worst over them is then NaN, printed as such, never a figure of the other runs alone."""
+    return np.array([np.nan if r[key] is None else float(r[key]) for r in runs])
+
+
 def random_table(results: dict[str, list[dict[str, Any]]], scenario: str, road: Road = DEFAULT_ROAD) -> list[str]:
     """Per driver, the mean and worst gap RMSE, the mean energy, comfort and safety; then the RMSE per seed."""
     key, unit = ENERGY[scenario]
@@ -86,8 +92,8 @@ def random_table(results: dict[str, list[dict[str, Any]]], scenario: str, road: 
         rmse = np.array([r["gap_rmse_55m_m"] for r in runs])
         lines.append(
             f"{name}: gap RMSE mean {rmse.mean():.2f} m, worst {rmse.max():.2f} m; "
-            f"energy {np.mean([r[key] for r in runs]):.1f} {unit}; jerk RMS {np.mean([r['jerk_rms_mps3'] for r in runs]):.2f} m/s^3, "
-            f"worst ISO jerk share {100 * max(r['iso_jerk_window_share'] for r in runs):.1f} %; "
+            f"energy {_figures(runs, key).mean():.1f} {unit}; jerk RMS {_figures(runs, 'jerk_rms_mps3').mean():.2f} m/s^3, "
+            f"worst ISO jerk share {100 * _figures(runs, 'iso_jerk_window_share').max():.1f} %; "
             f"collisions {sum(r['collisions'] for r in runs)}, min gap {min(r['gap_min_m'] for r in runs):.1f} m"
         )
         lines.append("    RMSE per seed: " + " ".join(f"{x:.2f}" for x in rmse))
