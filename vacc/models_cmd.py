@@ -101,7 +101,7 @@ def record_gates(folder: Path, report_path: Path) -> str:
     on the model whose file it checked (matched by SHA-256); return a line saying so.
 
     Raises:
-        click.ClickException: the report does not read, is a --quick one, or checked a file
+        click.ClickException: the report does not read, is a --quick or --skip one, or checked a file
             that is no indexed model.
     """
     try:
@@ -112,6 +112,8 @@ def record_gates(folder: Path, report_path: Path) -> str:
         raise click.ClickException(f"{report_path}: not a gates report of `vacc gates` ({exc})") from None
     if report.get("quick"):
         raise click.ClickException(f"{report_path}: a --quick report checks that the gates run, not the model: run `vacc gates` without --quick")
+    if report.get("skipped"):
+        raise click.ClickException(f"{report_path}: it skipped {', '.join(report['skipped'])} (--skip), so it is no verdict on the model: run `vacc gates` without --skip")
     if not checks:
         raise click.ClickException(f"{report_path}: the report holds no check (its recipe declares no gates)")
     index = read_index(folder)

@@ -100,11 +100,12 @@ def test_models_end_to_end():
     assert len(rows) == len(list(MODELS.glob("*.pt"))) and all(r["check"] == "ok" for r in rows)
 
 
-def _report(tmp_path: Path, sha: str, *, quick: bool = False, failing: int = 1) -> Path:
+def _report(tmp_path: Path, sha: str, *, quick: bool = False, failing: int = 1, skipped: tuple[str, ...] = ()) -> Path:
     checks = [{"gate": "tests", "what": f"test-{i} gap RMSE", "figure": 2.5, "bound": 3.4, "passed": True} for i in range(1, 5)]
     checks += [{"gate": "safety", "what": "distant-stop seed 3", "figure": 0.0, "bound": 1.0, "passed": False}] * failing
     path = tmp_path / "gates.json"
-    path.write_text(json.dumps({"recipe": "ice-gap", "recipe_digest": "d" * 64, "sha256": sha, "quick": quick, "checks": checks, "passed": not failing}))
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps({"recipe": "ice-gap", "recipe_digest": "d" * 64, "sha256": sha, "quick": quick, "skipped": list(skipped), "checks": checks, "passed": not failing}))
     return path
 
 
@@ -134,6 +135,7 @@ def test_a_quick_foreign_or_unreadable_gates_report_is_refused_in_one_line(tmp_p
     garbage.write_text("{")
     for report, words in (
         (_report(tmp_path, _sha256(folder / "ice-gap.pt"), quick=True), "a --quick report checks that the gates run"),
+        (_report(tmp_path / "skip", _sha256(folder / "ice-gap.pt"), failing=0, skipped=("safety",)), "it skipped safety (--skip), so it is no verdict on the model"),
         (garbage, "not a gates report of `vacc gates`"),
     ):
         done = CliRunner().invoke(main, ["models", "--models", str(folder), "--record-gates", str(report)])
