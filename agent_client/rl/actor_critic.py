@@ -261,7 +261,8 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
     gradient reaches the actor only, and the critic's reaches the critic and the convolutions.
     Without ``actor`` (the critic's warm-up, ``critic_warmup``) the actor's loss is left out
     and the convolutions the actor reads stay too: the actor drives as cloned while the
-    critic's own layers learn the values of what it does.
+    critic's own layers learn the values of what it does. With ``trunk_training`` "frozen"
+    they stay throughout (:func:`trains_trunk`).
 
     With ``anchor`` ``[B]`` (the student's decision on the batch, ``bc_weight`` > 0), the
     actor's loss is TD3+BC's (Fujimoto and Gu 2021): -min(Q1, Q2) over its mean magnitude,
@@ -270,7 +271,7 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
     """
     obs = random_shift(scale_frames(b.frames.to(device)), cfg.shift_pad)  # [B, S, H, W]
     next_obs = random_shift(scale_frames(b.next_frames.to(device)), cfg.shift_pad)
-    with torch.set_grad_enabled(actor):
+    with torch.set_grad_enabled(trains_trunk(cfg, actor)):
         z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
@@ -285,10 +286,17 @@ def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, op
     the one-step losses taken on its steps past the burn-in (R2D2)."""
     frames = scale_frames(seq.frames.to(device))  # [B, L + 1, S, H, W]
     frames = random_shift(frames.flatten(1, 2), cfg.shift_pad).view(frames.shape)  # one shift for a whole sequence
-    with torch.set_grad_enabled(actor):  # the warm-up keeps the trunk the actor reads
+    with torch.set_grad_enabled(trains_trunk(cfg, actor)):  # the warm-up keeps the trunk the actor reads
         h = net.unroll(frames, seq.speeds.to(device), seq.controls.to(device), seq.states.to(device))  # [B, L + 1, H]
     keep = seq.train.to(device)  # [B, L]
     return _td_step(net, target, optimizer, h[:, :-1][keep], h[:, 1:][keep].detach(), flat_transitions(seq, cfg.gamma), cfg, std, device, log, actor, anchor)
+
+
+def trains_trunk(cfg: Any, actor: bool) -> bool:
+    """Whether the critic's loss trains the trunk the actor reads on this update: not in the
+    warm-up, never with ``trunk_training`` "frozen" (the trunk stays the student's, so the
+    actor's features do not move under it)."""
+    return actor and cfg.trunk_training == "critic"
 
 
 def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, z: torch.Tensor, next_z: torch.Tensor,

@@ -34,6 +34,7 @@ from agent_client.rl.config import (
     SCHEDULES,
     SETTINGS,
     TEACHERS,
+    TRUNK_TRAINING,
     Config,
     ConfigError,
     config_from,
@@ -50,7 +51,7 @@ ZERO_IS_NONE = ("episode_seconds", "eval_seconds")  # lengths where 0 means none
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
     "teacher": TEACHERS, "decision": DECISIONS, "recurrent": RECURRENT,
-    "actor_levels": ACTOR_LEVELS,
+    "actor_levels": ACTOR_LEVELS, "trunk_training": TRUNK_TRAINING,
 }  # fmt: skip
 
 

@@ -31,7 +31,7 @@ from protocol.scenarios import (
 )
 
 __all__ = [
-    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "ACTOR_LEVELS", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
+    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "ACTOR_LEVELS", "TRUNK_TRAINING", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
     "EnvironmentSettings", "DQNSettings", "NetworkSettings", "EvaluationSettings", "TeacherSettings", "AuxiliarySettings",
     "DecisionSettings", "StreamsSettings", "ActorCriticSettings",
 ]  # fmt: skip
@@ -40,6 +40,7 @@ SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
 RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)
 ACTOR_LEVELS = ("none", *RAMP_ACTIONS)  # the actor-critic's output: a tanh, or a mean over a ramp type's levels
+TRUNK_TRAINING = ("critic", "frozen")  # who trains the actor-critic's trunk: the critic's loss (DrQ-v2), or none
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -322,6 +323,8 @@ class ActorCriticSettings:
     """(continuous) TD3+BC pull toward init_from's decision."""
     actor_levels: str = "none"
     """(continuous) a tanh, or a ramp type's softmax mean."""
+    trunk_training: str = "critic"
+    """(continuous) the critic trains the trunk, or it stays as initialised."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -519,6 +522,8 @@ def check_actor_critic(cfg: ActorCriticSettings) -> None:
     _at_least(cfg, ("bc_steps", "critic_warmup"), 0)
     if cfg.actor_levels not in ACTOR_LEVELS:
         raise _bad("actor_levels", f"must be one of {', '.join(ACTOR_LEVELS)}, got {cfg.actor_levels!r}")
+    if cfg.trunk_training not in TRUNK_TRAINING:
+        raise _bad("trunk_training", f"must be one of {', '.join(TRUNK_TRAINING)}, got {cfg.trunk_training!r}")
 
 
 def check_across_sections(cfg: Config) -> None:
@@ -558,6 +563,8 @@ def check_continuous(cfg: Config) -> None:
             raise _bad("actor_levels", "is the actor-critic's output: it needs action 'continuous'")
         if cfg.bc_weight > 0.0:
             raise _bad("bc_weight", "anchors the actor-critic's actor to a student: it needs action 'continuous'")
+        if cfg.trunk_training != "critic":
+            raise _bad("trunk_training", "says who trains the actor-critic's trunk: it needs action 'continuous'")
         return
     for field, used, what in (
         ("teacher", cfg.teacher != "none", "a teacher's labels (clone a student with init_from and bc_steps)"),
@@ -569,6 +576,8 @@ def check_continuous(cfg: Config) -> None:
     for field in ("bc_steps", "bc_weight"):
         if getattr(cfg, field) > 0 and cfg.init_from is None:
             raise _bad(field, "reads the init_from checkpoint's decision: give init_from")
+    if cfg.trunk_training == "frozen" and cfg.init_from is None:
+        raise _bad("trunk_training", "'frozen' keeps the trunk init_from gives: give init_from")
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:

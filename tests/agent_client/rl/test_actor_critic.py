@@ -93,6 +93,21 @@ def test_in_the_critics_warmup_the_actor_and_its_trunk_do_not_move_and_the_criti
     assert not torch.equal(net.state_dict()["fc.2.weight"], before["fc.2.weight"])
 
 
+def test_a_frozen_trunk_stays_while_the_actor_and_the_critics_own_layers_learn():
+    torch.manual_seed(0)
+    cfg = Config(**{**CONT.__dict__, "trunk_training": "frozen", "init_from": "student.pt"})
+    net = ac.ActorCritic.of(cfg)
+    target = ac.target_of(net)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
+    for _ in range(3):
+        ac.update(net, target, opt, b, cfg, 0.2, torch.device("cpu"), log=False)
+    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    assert {"fc.0.weight", "fc.2.weight", "critic_trunk.0.weight", "q1.0.weight", "q2.2.weight"} <= moved
+    assert not any(k.startswith("conv.") for k in moved)  # the features the actor reads do not move under it
+
+
 def test_the_actors_loss_reaches_the_actor_only():
     torch.manual_seed(0)
     net = ac.ActorCritic.of(CONT)
@@ -198,7 +213,8 @@ def test_an_anchor_pulls_the_actor_to_the_students_decision():
     ("changes", "field"),
     [({"teacher": "acc"}, "teacher"), ({"aux_gap": 1.0}, "aux_gap"), ({"bc_steps": 5}, "bc_steps"), ({"critic_tau": 0.0}, "critic_tau"),
      ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup"),
-     ({"actor_levels": "fine"}, "actor_levels"), ({"bc_weight": -1.0}, "bc_weight"), ({"bc_weight": 1.0}, "bc_weight")],
+     ({"actor_levels": "fine"}, "actor_levels"), ({"bc_weight": -1.0}, "bc_weight"), ({"bc_weight": 1.0}, "bc_weight"),
+     ({"trunk_training": "actor"}, "trunk_training"), ({"trunk_training": "frozen"}, "trunk_training")],
 )  # fmt: skip
 def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     with pytest.raises(ConfigError) as err:
@@ -212,6 +228,8 @@ def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
         Config(actor_levels="ramp-fine")
     with pytest.raises(ConfigError, match="bc_weight.*continuous"):
         Config(bc_weight=1.0, init_from="x.pt")
+    with pytest.raises(ConfigError, match="trunk_training.*continuous"):
+        Config(trunk_training="frozen", init_from="x.pt")
 
 
 @pytest.mark.slow
