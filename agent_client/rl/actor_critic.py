@@ -22,7 +22,9 @@ layer names, so a DQN checkpoint's perception copies over) feed
   student's Q head copies in and the actor starts as its decision, exactly;
 * the critic: a ``critic_trunk`` (hidden, LayerNorm, tanh) and two heads ``q1``, ``q2``
   over (trunk, action) (clipped double Q). Only the critic's gradient trains the
-  convolutions; the actor reads them detached (DrQ-v2).
+  convolutions; the actor reads them detached (DrQ-v2). With ``trunk_training`` "frozen"
+  nothing trains them; with "critic-copy" the critic reads and trains its own copy,
+  ``critic_conv``, and the actor's stay as initialised.
 """
 
 from __future__ import annotations
@@ -70,13 +72,15 @@ class ActorCritic(nn.Module):
         hidden: units of the actor's and the critic's hidden layers.
         levels: the force levels the actor averages (``actor_levels``); None: a tanh.
         temperature: the softmax temperature of that mean.
+        critic_copy: the critic reads its own copy of the convolutions (``trunk_training``
+            "critic-copy").
     """
 
     recurrent = False  # RecurrentActorCritic: a state carried from step to step
 
     def __init__(self, frame_stack: int = 8, speed_scale: float = 30.0, n_controls: int = 2,
                  conv_channels: tuple[int, ...] = (16, 32, 64), hidden: int = 256,
-                 levels: tuple[float, ...] | None = None, temperature: float = 2.0):  # fmt: skip
+                 levels: tuple[float, ...] | None = None, temperature: float = 2.0, critic_copy: bool = False):  # fmt: skip
         super().__init__()
         self.speed_scale, self.n_controls = speed_scale, n_controls
         self.temperature = temperature
@@ -97,6 +101,8 @@ class ActorCritic(nn.Module):
         self.q1 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
         self.q2 = nn.Sequential(nn.Linear(hidden + 1, hidden), nn.ReLU(), nn.Linear(hidden, 1))
         self._convs: tuple[nn.Conv2d, ...] = tuple(m for m in self.conv if isinstance(m, nn.Conv2d))
+        self.critic_conv = copy.deepcopy(self.conv) if critic_copy else None  # init_from copies the actor's into it
+        self._critic_convs = self._convs if self.critic_conv is None else tuple(m for m in self.critic_conv if isinstance(m, nn.Conv2d))
         self._linears: tuple[nn.Linear, ...] = (self.fc[0], self.fc[2])  # type: ignore[assignment]
         self.gap_head = self.closing_head = None  # no auxiliary heads (the DDQN controller asks)
 
@@ -114,7 +120,7 @@ class ActorCritic(nn.Module):
         named = getattr(cfg, "actor_levels", "none")
         levels = None if named == "none" else tuple(level_values(named).tolist())
         return kind(cfg.frame_stack, cfg.speed_scale, make_action_type(cfg.action).n_controls, tuple(cfg.conv_channels), cfg.hidden,
-                    levels, cfg.decision_temperature)  # fmt: skip
+                    levels, cfg.decision_temperature, getattr(cfg, "trunk_training", "critic") == "critic-copy")  # fmt: skip
 
     @property
     def device(self) -> torch.device:
@@ -123,8 +129,15 @@ class ActorCritic(nn.Module):
     def features(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
         """``[B, n_in]``: the flattened convolutions, the speeds and the controls (the DQN's
         first fully connected layer's input, computed as it computes it)."""
+        return self._features_through(self._convs, frames, speeds, controls)
+
+    def critic_features(self, frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`features` through the critic's own convolutions where it has them."""
+        return self._features_through(self._critic_convs, frames, speeds, controls)
+
+    def _features_through(self, convs: tuple[nn.Conv2d, ...], frames: torch.Tensor, speeds: torch.Tensor, controls: torch.Tensor | None) -> torch.Tensor:
         x = frames if frames.is_floating_point() else scale_frames(frames)
-        for conv in self._convs:
+        for conv in convs:
             x = torch.relu(F.conv2d(x, conv.weight, conv.bias, conv.stride))
         parts = [x.flatten(1), speeds.float() / self.speed_scale]  # [B, 2560], [B, S]
         if self.n_controls:
@@ -275,7 +288,12 @@ def update(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimiz
         z = net.features(obs, b.speeds.to(device), b.controls.to(device))  # [B, n_in]
     with torch.no_grad():
         next_z = net.features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
-    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor, anchor)
+    if net.critic_conv is None:
+        return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor, anchor)
+    zc = net.critic_features(obs, b.speeds.to(device), b.controls.to(device))  # its own copy trains, warm-up included
+    with torch.no_grad():
+        next_zc = net.critic_features(next_obs, b.next_speeds.to(device), b.next_controls.to(device))
+    return _td_step(net, target, optimizer, z, next_z, b, cfg, std, device, log, actor, anchor, (zc, next_zc))
 
 
 def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, optimizer: torch.optim.Optimizer, seq: Any,
@@ -294,27 +312,29 @@ def update_sequences(net: RecurrentActorCritic, target: RecurrentActorCritic, op
 
 def trains_trunk(cfg: Any, actor: bool) -> bool:
     """Whether the critic's loss trains the trunk the actor reads on this update: not in the
-    warm-up, never with ``trunk_training`` "frozen" (the trunk stays the student's, so the
-    actor's features do not move under it)."""
+    warm-up, never with ``trunk_training`` "frozen" or "critic-copy" (the trunk stays the
+    student's, so the actor's features do not move under it)."""
     return actor and cfg.trunk_training == "critic"
 
 
 def _td_step(net: ActorCritic, target: ActorCritic, optimizer: torch.optim.Optimizer, z: torch.Tensor, next_z: torch.Tensor,
-             b: Any, cfg: Any, std: float, device: torch.device, log: bool, actor: bool, anchor: torch.Tensor | None = None) -> ACLosses | None:  # fmt: skip
-    """The losses and the step of :func:`update` on features ``z`` (with the graph) and ``next_z`` (without)."""
+             b: Any, cfg: Any, std: float, device: torch.device, log: bool, actor: bool, anchor: torch.Tensor | None = None,
+             critics: tuple[torch.Tensor, torch.Tensor] | None = None) -> ACLosses | None:  # fmt: skip
+    """The losses and the step of :func:`update` on features ``z`` (with the graph) and ``next_z``
+    (without); ``critics``: the critic's own features of both, where it reads its own copy."""
+    zc, next_zc = (z, next_z) if critics is None else critics
     with torch.no_grad():
         noise = (torch.randn(len(next_z), device=device) * std).clamp(-cfg.noise_clip, cfg.noise_clip)  # [B]
         next_a = (net.actor(next_z) + noise).clamp(-1.0, 1.0)  # [B] target policy smoothing
-        tq1, tq2 = target.critic(next_z, next_a)
+        tq1, tq2 = target.critic(next_zc, next_a)
         done = b.terminated.to(device).float()  # [B]; truncations bootstrap
         terminal = b.terminal_rewards.to(device) / (1.0 - cfg.gamma) * float(cfg.absorbing_terminal)
         y = b.returns.to(device) + b.discounts.to(device) * ((1.0 - done) * torch.min(tq1, tq2) + done * terminal)  # [B]
-    q1, q2 = net.critic(z, b.actions.to(device).float())
+    q1, q2 = net.critic(zc, b.actions.to(device).float())
     critic_loss = F.mse_loss(q1, y) + F.mse_loss(q2, y)
     frozen = {k: v.detach() for k, v in net.named_parameters() if k.startswith(("critic_trunk", "q1", "q2"))}
-    zd = z.detach()
-    a = net.actor(zd)  # [B]
-    q_pi = torch.min(*_critic_with(net, frozen, zd, a))
+    a = net.actor(z.detach())  # [B]
+    q_pi = torch.min(*_critic_with(net, frozen, zc.detach(), a))
     bc = None if anchor is None else F.mse_loss(a, anchor)
     actor_loss = -q_pi.mean() if bc is None else -q_pi.mean() / q_pi.abs().mean().detach().clamp(min=1e-6) + cfg.bc_weight * bc
     optimizer.zero_grad()

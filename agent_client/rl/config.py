@@ -40,7 +40,7 @@ SCHEDULES = ("parallel", "serial")
 DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (agent_client.rl.network.Policy)
 RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)
 ACTOR_LEVELS = ("none", *RAMP_ACTIONS)  # the actor-critic's output: a tanh, or a mean over a ramp type's levels
-TRUNK_TRAINING = ("critic", "frozen")  # who trains the actor-critic's trunk: the critic's loss (DrQ-v2), or none
+TRUNK_TRAINING = ("critic", "frozen", "critic-copy")  # who trains the actor-critic's trunk: the critic (DrQ-v2), none, or the critic its own copy
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -324,7 +324,7 @@ class ActorCriticSettings:
     actor_levels: str = "none"
     """(continuous) a tanh, or a ramp type's softmax mean."""
     trunk_training: str = "critic"
-    """(continuous) the critic trains the trunk, or it stays as initialised."""
+    """(continuous) the critic trains the trunk; it stays; or the critic trains a copy."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -546,6 +546,7 @@ def check_recurrent(cfg: Config) -> None:
         ("n_step", cfg.n_step != 1, "n-step returns (one-step targets from the unrolled sequence)"),
         ("brake_margin", cfg.brake_margin > 0.0, "a brake margin"),
         ("teacher", cfg.teacher == "policy", "a policy teacher (a law's labels only)"),
+        ("trunk_training", cfg.trunk_training == "critic-copy", "copy of its trunk for the critic"),
     ):  # fmt: skip
         if used:
             raise _bad(field, f"is not for the recurrent trunk (recurrent {cfg.recurrent!r}): it has no {what}")
@@ -576,8 +577,8 @@ def check_continuous(cfg: Config) -> None:
     for field in ("bc_steps", "bc_weight"):
         if getattr(cfg, field) > 0 and cfg.init_from is None:
             raise _bad(field, "reads the init_from checkpoint's decision: give init_from")
-    if cfg.trunk_training == "frozen" and cfg.init_from is None:
-        raise _bad("trunk_training", "'frozen' keeps the trunk init_from gives: give init_from")
+    if cfg.trunk_training != "critic" and cfg.init_from is None:
+        raise _bad("trunk_training", f"{cfg.trunk_training!r} keeps the trunk init_from gives: give init_from")
 
 
 def config_dict(cfg: Config) -> dict[str, Any]:

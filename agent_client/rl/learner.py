@@ -292,6 +292,9 @@ class Learner:
             transfer_weights(ac.recurrent_start(init_q), self.q)
         else:  # another action set, a gap head added, or a DQN's trunk for the actor-critic (its actor cloned by bc_steps)
             transfer_weights(init_q, self.q)
+        critic_conv = getattr(self.q, "critic_conv", None)
+        if isinstance(critic_conv, nn.Module) and "critic_conv.0.weight" not in init_q.state_dict():
+            critic_conv.load_state_dict(self.q.conv.state_dict())  # the critic's copy starts as the actor's trunk
         self.target.load_state_dict(self.q.state_dict())
 
     def _new_lineage(self) -> Lineage:

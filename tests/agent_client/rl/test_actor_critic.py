@@ -108,6 +108,26 @@ def test_a_frozen_trunk_stays_while_the_actor_and_the_critics_own_layers_learn()
     assert not any(k.startswith("conv.") for k in moved)  # the features the actor reads do not move under it
 
 
+def test_a_critics_copy_of_the_trunk_learns_and_the_actors_stays():
+    torch.manual_seed(0)
+    cfg = Config(**{**CONT.__dict__, "trunk_training": "critic-copy", "init_from": "student.pt"})
+    net = ac.ActorCritic.of(cfg)
+    net.critic_conv.load_state_dict(net.conv.state_dict())  # as init_from starts it
+    target = ac.target_of(net)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
+    for _ in range(3):
+        ac.update(net, target, opt, b, cfg, 0.2, torch.device("cpu"), log=False)
+    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    assert {"critic_conv.0.weight", "critic_conv.4.weight", "fc.2.weight", "q1.0.weight"} <= moved
+    assert not any(k.startswith("conv.") for k in moved)
+    decision = net(b.frames, b.speeds, b.controls)
+    with torch.no_grad():
+        net.critic_conv[0].weight.mul_(-1.0)
+    assert torch.equal(net(b.frames, b.speeds, b.controls), decision)  # a decision reads the actor's trunk alone: one pass, as fast
+
+
 def test_the_actors_loss_reaches_the_actor_only():
     torch.manual_seed(0)
     net = ac.ActorCritic.of(CONT)
@@ -214,7 +234,8 @@ def test_an_anchor_pulls_the_actor_to_the_students_decision():
     [({"teacher": "acc"}, "teacher"), ({"aux_gap": 1.0}, "aux_gap"), ({"bc_steps": 5}, "bc_steps"), ({"critic_tau": 0.0}, "critic_tau"),
      ({"shift_pad": 17}, "shift_pad"), ({"noise_end": -0.1}, "noise_end"), ({"critic_warmup": -1}, "critic_warmup"),
      ({"actor_levels": "fine"}, "actor_levels"), ({"bc_weight": -1.0}, "bc_weight"), ({"bc_weight": 1.0}, "bc_weight"),
-     ({"trunk_training": "actor"}, "trunk_training"), ({"trunk_training": "frozen"}, "trunk_training")],
+     ({"trunk_training": "actor"}, "trunk_training"), ({"trunk_training": "frozen"}, "trunk_training"),
+     ({"trunk_training": "critic-copy", "init_from": "x.pt", "recurrent": "gru"}, "trunk_training")],
 )  # fmt: skip
 def test_config_refuses_what_the_actor_critic_does_not_do(changes, field):
     with pytest.raises(ConfigError) as err:
@@ -293,14 +314,23 @@ def test_until_learning_starts_the_student_drives_so_the_clone_sees_its_states(t
 
 
 @pytest.mark.slow
-def test_a_run_anchored_to_its_student_logs_the_distance_and_resumes_exactly(tmp_path):
+@pytest.mark.parametrize("trunk", ["critic", "critic-copy"])
+def test_a_run_anchored_to_its_student_logs_the_distance_and_resumes_exactly(tmp_path, trunk):
     """--bc-weight with --actor-levels: the actor starts as the student and is anchored to it;
-    the distance is logged while the actor learns; a resumed run equals an uninterrupted one."""
+    the distance is logged while the actor learns; a resumed run equals an uninterrupted one.
+    With the critic's own copy of the trunk, the copy starts as the student's and learns while
+    the actor's stays the student's."""
     student_cfg = Config(action="ramp-fine", conv_channels=(4, 8, 8), hidden=32)
     torch.manual_seed(7)
     save_policy(QNetwork.of(student_cfg), student_cfg, tmp_path / "student.pt")
-    cfg = Config(**{**CONT.__dict__, "init_from": str(tmp_path / "student.pt"), "bc_weight": 0.5, "actor_levels": "ramp-fine", "critic_warmup": 3})
+    cfg = Config(**{**CONT.__dict__, "init_from": str(tmp_path / "student.pt"), "bc_weight": 0.5, "actor_levels": "ramp-fine", "critic_warmup": 3,
+                    "trunk_training": trunk})  # fmt: skip
     train(cfg, tmp_path / "whole", progress=False)
+    if trunk == "critic-copy":
+        student = torch.load(tmp_path / "student.pt", weights_only=True)["model"]
+        run = torch.load(tmp_path / "whole" / "latest.pt", weights_only=True)["model"]
+        assert torch.equal(run["conv.0.weight"], student["conv.0.weight"])
+        assert not torch.equal(run["critic_conv.0.weight"], student["conv.0.weight"])
     train(Config(**{**cfg.__dict__, "total_steps": 60}), tmp_path / "split", progress=False)
     train(cfg, tmp_path / "split", resume=True, progress=False)
     a, b = (torch.load(p / "latest.pt", weights_only=True) for p in (tmp_path / "whole", tmp_path / "split"))
