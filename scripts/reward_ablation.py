@@ -2,6 +2,8 @@
 
     .venv/bin/python scripts/reward_ablation.py runs/eval-ice      # the logs of a `vacc evaluate` run
     .venv/bin/python scripts/reward_ablation.py runs/eval-ev
+    .venv/bin/python scripts/reward_ablation.py --scenario ice \
+        --group 'student=runs/abl/noaug-*/gates/logs/ddqn-test-*.csv' --group 'ac=runs/abl/base-*/gates/logs/ddqn-test-*.csv'
 
 The eco reward is linear in its four terms (gap, energy, comfort, closing: rewards.py), so
 each run's mean terms are computed once from its log and every weighting is a weighted sum
@@ -10,6 +12,8 @@ over the weights' total, the reward the trainer would have paid per step. The lo
 computed from each row by :func:`agent_client.rewards.eco_terms`: the one function the eco
 reward and the env's ``info["reward_terms"]`` are built from. Prints, per
 weighting, the mean reward per step of each method over its logs and the methods in order.
+``--group NAME=GLOB`` (repeatable) scores any logs as one method instead, such as the test
+logs of several ``vacc gates`` folders; ``--scenario`` is for logs without a run card.
 A reward-design check, not a training run: it says what a policy that maximised each
 weighting would be pushed toward, among behaviours that exist.
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import glob
 import sys
 from pathlib import Path
 
@@ -52,26 +57,50 @@ def mean_terms(log: Path, scenario: str) -> np.ndarray:
     return np.mean(terms, axis=0)
 
 
-def run_scenario(log: Path) -> str:
-    """The scenario ("ice" or "ev") a run log's card records; a log without one is refused."""
+def run_scenario(log: Path, given: str | None = None) -> str:
+    """The scenario ("ice" or "ev") a run log's card records, else ``given``; a log with
+    neither is refused, and so is one whose card says another than ``given``."""
     try:
         card = read_card(log)
     except InputFileError as exc:
         sys.exit(str(exc))
-    scenario = ((card or {}).get("episode") or {}).get("scenario")
+    scenario = ((card or {}).get("episode") or {}).get("scenario", given)
     if scenario not in ("ice", "ev"):
-        sys.exit(f"{log}: its run card does not say the scenario (ice or ev)")
+        sys.exit(f"{log}: its run card does not say the scenario (ice or ev); give --scenario")
+    if given is not None and scenario != given:
+        sys.exit(f"{log}: its run card says scenario {scenario!r}, not --scenario {given!r}")
     return scenario
+
+
+def groups_of(specs: list[str]) -> dict[str, list[Path]]:
+    """``NAME=GLOB`` specs as {name: the logs the glob matches}; a spec without '=' or one that
+    matches nothing is refused."""
+    groups = {}
+    for spec in specs:
+        name, sep, pattern = spec.partition("=")
+        if not sep or not name or not pattern:
+            sys.exit(f"--group {spec!r}: give NAME=GLOB")
+        groups[name] = sorted(Path(p) for p in glob.glob(pattern))
+        if not groups[name]:
+            sys.exit(f"--group {spec!r}: no file matches {pattern!r}")
+    return groups
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("run", type=Path, help="a `vacc evaluate --out` folder (its logs/)")
+    p.add_argument("run", type=Path, nargs="?", help="a `vacc evaluate --out` folder (its logs/)")
+    p.add_argument("--group", action="append", default=[], metavar="NAME=GLOB", help="score these logs as method NAME (repeatable), instead of a folder")
+    p.add_argument("--scenario", choices=("ice", "ev"), help="the scenario of logs without a run card (vacc gates' logs)")
     a = p.parse_args()
-    logs = {m: sorted((a.run / "logs").glob(f"{m}-*.csv")) for m in FOLLOWERS}
-    if not any(logs.values()):
-        sys.exit(f"{a.run / 'logs'}: no run logs of {', '.join(FOLLOWERS)}")
-    terms = {m: np.mean([mean_terms(f, run_scenario(f)) for f in fs], axis=0) for m, fs in logs.items() if fs}
+    if (a.run is None) == (not a.group):
+        p.error("give a run folder or --group NAME=GLOB, not both")
+    if a.group:
+        logs = groups_of(a.group)
+    else:
+        logs = {m: sorted((a.run / "logs").glob(f"{m}-*.csv")) for m in FOLLOWERS}
+        if not any(logs.values()):
+            sys.exit(f"{a.run / 'logs'}: no run logs of {', '.join(FOLLOWERS)}")
+    terms = {m: np.mean([mean_terms(f, run_scenario(f, a.scenario)) for f in fs], axis=0) for m, fs in logs.items() if fs}
     print("mean terms per step (gap/10, -energy, -comfort, -closing):")
     for m, t in terms.items():
         print(f"  {m:11} " + " ".join(f"{x:+.4f}" for x in t))

@@ -101,6 +101,21 @@ def test_reward_ablation_reads_the_scenario_from_the_run_cards_not_the_folder_na
     assert ice.returncode == ev.returncode == 0 and ice.stdout != ev.stdout  # the energy term is the vehicle's
 
 
+def test_reward_ablation_scores_groups_of_cardless_logs_given_their_scenario(tmp_path):
+    for name, gap in (("close", 40.0), ("far", 150.0)):
+        for k in (1, 2):
+            _log(tmp_path / f"{name}-{k}.csv", 20.0, gap, scenario=None)
+    groups = ["--group", f"near={tmp_path}/close-*.csv", "--group", f"away={tmp_path}/far-*.csv"]
+    refused = run("reward_ablation.py", *groups)
+    assert refused.returncode == 1 and "give --scenario" in refused.stderr
+    result = run("reward_ablation.py", "--scenario", "ice", *groups)
+    assert result.returncode == 0, result.stderr
+    gap_only = next(line for line in result.stdout.splitlines() if line.startswith("gap only"))
+    assert gap_only.split()[2] == "near" and gap_only.split()[4] == "away"
+    none = run("reward_ablation.py", "--scenario", "ice", "--group", f"x={tmp_path}/nothing-*.csv")
+    assert none.returncode == 1 and "no file matches" in none.stderr
+
+
 def test_reward_ablation_ranks_a_close_follower_above_a_far_one(tmp_path):
     run_dir = tmp_path / "eval-ice"
     (run_dir / "logs").mkdir(parents=True)
