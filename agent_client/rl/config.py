@@ -324,7 +324,7 @@ class ActorCriticSettings:
     actor_levels: str = "none"
     """(continuous) a tanh, or a ramp type's softmax mean."""
     trunk_training: str = "critic"
-    """(continuous) the critic trains the trunk; it stays; or the critic trains a copy."""
+    """(continuous) who trains the trunk the actor reads."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
