@@ -77,16 +77,23 @@ def test_update_trains_the_critic_through_the_trunk_and_the_actor_alone():
     assert t_moved and all(k.startswith(("critic_trunk", "q1", "q2")) for k in t_moved)
 
 
-def test_in_the_critics_warmup_the_actor_and_its_trunk_do_not_move_and_the_critic_does():
-    torch.manual_seed(0)
-    net = ac.ActorCritic.of(CONT)
+def _three_updates(net: ac.ActorCritic, cfg: Config, actor: bool = True):
+    """Three updates of ``net`` on one replay batch: the names of the tensors they moved, and
+    what a further update needs (the batch, the critic's target, the optimiser, the weights before)."""
     target = ac.target_of(net)
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
     before = {k: v.clone() for k, v in net.state_dict().items()}
     b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
     for _ in range(3):
-        ac.update(net, target, opt, b, CONT, 0.2, torch.device("cpu"), log=False, actor=False)
+        ac.update(net, target, opt, b, cfg, 0.2, torch.device("cpu"), log=False, actor=actor)
     moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    return moved, b, target, opt, before
+
+
+def test_in_the_critics_warmup_the_actor_and_its_trunk_do_not_move_and_the_critic_does():
+    torch.manual_seed(0)
+    net = ac.ActorCritic.of(CONT)
+    moved, b, target, opt, before = _three_updates(net, CONT, actor=False)
     assert {"critic_trunk.0.weight", "q1.0.weight", "q2.2.weight"} <= moved  # the critic's own layers
     assert not moved & {"conv.0.weight", "conv.4.weight", "fc.0.weight", "fc.2.weight", "fc.2.bias"}  # what the actor reads, and the actor
     ac.update(net, target, opt, b, CONT, 0.2, torch.device("cpu"), log=False)  # after it: the actor learns
@@ -96,14 +103,7 @@ def test_in_the_critics_warmup_the_actor_and_its_trunk_do_not_move_and_the_criti
 def test_a_frozen_trunk_stays_while_the_actor_and_the_critics_own_layers_learn():
     torch.manual_seed(0)
     cfg = Config(**{**CONT.__dict__, "trunk_training": "frozen", "init_from": "student.pt"})
-    net = ac.ActorCritic.of(cfg)
-    target = ac.target_of(net)
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-    before = {k: v.clone() for k, v in net.state_dict().items()}
-    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
-    for _ in range(3):
-        ac.update(net, target, opt, b, cfg, 0.2, torch.device("cpu"), log=False)
-    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    moved = _three_updates(ac.ActorCritic.of(cfg), cfg)[0]
     assert {"fc.0.weight", "fc.2.weight", "critic_trunk.0.weight", "q1.0.weight", "q2.2.weight"} <= moved
     assert not any(k.startswith("conv.") for k in moved)  # the features the actor reads do not move under it
 
@@ -113,13 +113,7 @@ def test_a_critics_copy_of_the_trunk_learns_and_the_actors_stays():
     cfg = Config(**{**CONT.__dict__, "trunk_training": "critic-copy", "init_from": "student.pt"})
     net = ac.ActorCritic.of(cfg)
     net.critic_conv.load_state_dict(net.conv.state_dict())  # as init_from starts it
-    target = ac.target_of(net)
-    opt = torch.optim.Adam(net.parameters(), lr=1e-3)
-    before = {k: v.clone() for k, v in net.state_dict().items()}
-    b = _batch().sample(8, np.random.default_rng(1), 3, 0.99)
-    for _ in range(3):
-        ac.update(net, target, opt, b, cfg, 0.2, torch.device("cpu"), log=False)
-    moved = {k for k, v in net.state_dict().items() if not torch.equal(v, before[k])}
+    moved, b = _three_updates(net, cfg)[:2]
     assert {"critic_conv.0.weight", "critic_conv.4.weight", "fc.2.weight", "q1.0.weight"} <= moved
     assert not any(k.startswith("conv.") for k in moved)
     decision = net(b.frames, b.speeds, b.controls)
