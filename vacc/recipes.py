@@ -84,7 +84,7 @@ COMMON_KEYS = ("name", "kind", *OPTIONAL_KEYS)
 OUTCOME_KEYS = ("known_weights",)  # what a stage is known to make: not part of the digest
 RECIPE_KEYS = ("name", "scenario", "description", "seed", "cpu_path", "reseed_from")
 HOW_KEYS = ("cpu_path",)  # how the stages run, not what they are: not part of the digest
-LATE_OPTIONS: dict[str, Any] = {"critic_warmup": 0, "actor_levels": "none", "bc_weight": 0.0, "trunk_training": "critic"}
+LATE_OPTIONS: dict[str, Any] = {"critic_warmup": 0, "actor_levels": "none", "bc_weight": 0.0, "trunk_training": "critic", "emergency": "closing"}
 """Train options added after recipes were first digested, at the value that changes nothing:
 left out of a recipe's digest and a stage's key (:func:`keyed_options`), so that writing them
 into every recipe leaves every run folder and ``--reuse`` valid."""

@@ -29,6 +29,7 @@ from agent_client.rewards import REWARDS
 from agent_client.rl.config import (
     ACTOR_LEVELS,
     DECISIONS,
+    EMERGENCIES,
     RECURRENT,
     RESUMABLE_CHANGES,
     SCHEDULES,
@@ -51,7 +52,7 @@ ZERO_IS_NONE = ("episode_seconds", "eval_seconds")  # lengths where 0 means none
 CHOICES: dict[str, tuple[Any, ...]] = {
     "reward": tuple(sorted(REWARDS)), "scenario": SCENARIOS, "schedule": SCHEDULES, "zoom": ZOOMS, "action": ACTION_TYPES,
     "teacher": TEACHERS, "decision": DECISIONS, "recurrent": RECURRENT,
-    "actor_levels": ACTOR_LEVELS, "trunk_training": TRUNK_TRAINING,
+    "actor_levels": ACTOR_LEVELS, "trunk_training": TRUNK_TRAINING, "emergency": EMERGENCIES,
 }  # fmt: skip
 
 
@@ -263,8 +264,8 @@ def train(out: str, resume: bool, overwrite: bool, quiet: bool, use_ray: bool, r
     """Train a policy from camera frames (Double DQN; DrQ-v2 with --action continuous)
     against spawned simulator servers.
 
-    Writes config.json, scalars.csv, latest.pt and best.pt (the best evaluation's policy)
-    in OUT. Why the defaults: docs/training.md, "Options".
+    Writes config.json, scalars.csv, latest.pt and best.pt (the best evaluation) in
+    OUT. Why the defaults: docs/training.md, "Options".
     """
     cfg = make_config(values)
     if ray_address is not None and not use_ray:

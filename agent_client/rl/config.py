@@ -31,7 +31,7 @@ from protocol.scenarios import (
 )
 
 __all__ = [
-    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "ACTOR_LEVELS", "TRUNK_TRAINING", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
+    "Config", "ConfigError", "SETTINGS", "SECTIONS", "DECISIONS", "RECURRENT", "ACTOR_LEVELS", "TRUNK_TRAINING", "EMERGENCIES", "SCHEDULES", "TEACHERS", "RESUMABLE_CHANGES", "config_dict", "config_from",
     "EnvironmentSettings", "DQNSettings", "NetworkSettings", "EvaluationSettings", "TeacherSettings", "AuxiliarySettings",
     "DecisionSettings", "StreamsSettings", "ActorCriticSettings",
 ]  # fmt: skip
@@ -41,6 +41,7 @@ DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (ag
 RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)
 ACTOR_LEVELS = ("none", *RAMP_ACTIONS)  # the actor-critic's output: a tanh, or a mean over a ramp type's levels
 TRUNK_TRAINING = ("critic", "frozen", "critic-copy")  # who trains the actor-critic's trunk: the critic (DrQ-v2), none, or the critic its own copy
+EMERGENCIES = ("closing", "stopping")  # the brake margin's emergencies: the lead holds its speed, or brakes on to a stop
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -171,7 +172,7 @@ class DQNSettings:
     init_from: str | None = None
     """Checkpoint whose weights start the run."""
     torch_threads: int = 2
-    """Torch CPU threads (at most OMP_NUM_THREADS)."""
+    """Torch CPU threads (≤ OMP_NUM_THREADS)."""
     cuda: bool = True
     """Use CUDA if available."""
     log_every: int = 500
@@ -200,7 +201,7 @@ class NetworkSettings:
     zoom: int = 1
     """Camera window: 1, the paper's (halved); 2, full resolution."""
     recurrent: str = "none"
-    """"gru": a GRU carries a state over the frames."""
+    """"gru": a GRU over frames."""
     burn_in: int = 8
     """(gru) steps rebuilding a state."""
     sequence_length: int = 16
@@ -258,6 +259,8 @@ class AuxiliarySettings:
     """Weight of a closing-speed head (0: off)."""
     brake_margin: float = 0.0
     """(DQN) weight of a full-brake-first loss in emergencies."""
+    emergency: str = "closing"
+    """(brake margin) the lead holds speed, or stops."""
 
     def __post_init__(self) -> None:
         check_auxiliary(self)
@@ -276,7 +279,7 @@ class DecisionSettings:
     decision_brake_confirm: int = 1
     """(mean) decisions in a row at the share."""
     decision_full_brake_confirm: int = 1
-    """(mean) decisions in a row at a full-brake argmax."""
+    """(mean) the same at a full-brake argmax."""
     decision_deadband: float = 0.0
     """(mean) hold the force where the target is this close (0: off)."""
     decision_smoothing: float = 1.0
@@ -322,9 +325,9 @@ class ActorCriticSettings:
     bc_weight: float = 0.0
     """(continuous) TD3+BC pull toward init_from's decision."""
     actor_levels: str = "none"
-    """(continuous) a tanh, or a ramp type's softmax mean."""
+    """(continuous) tanh, or a ramp's softmax mean."""
     trunk_training: str = "critic"
-    """(continuous) who trains the trunk the actor reads."""
+    """(continuous) who trains the actor's trunk."""
 
     def __post_init__(self) -> None:
         check_actor_critic(self)
@@ -353,6 +356,12 @@ class Config(ActorCriticSettings, StreamsSettings, DecisionSettings, AuxiliarySe
         """Whether the replay keeps each observation's gap: the privileged target of the
         auxiliary heads and the brake margin's emergencies, never an input."""
         return self.aux_gap > 0.0 or self.aux_closing > 0.0 or self.brake_margin > 0.0
+
+    @property
+    def stores_lead_stops(self) -> bool:
+        """Whether the replay keeps the distance the lead needs to stop at its present
+        deceleration (privileged, never an input): the brake margin's ``stopping`` emergencies."""
+        return self.brake_margin > 0.0 and self.emergency == "stopping"
 
 
 # The sections, by name; each validates itself, and check_across_sections reads several.
@@ -476,7 +485,11 @@ def check_teacher(cfg: TeacherSettings) -> None:
 
 def check_auxiliary(cfg: AuxiliarySettings) -> None:
     """The auxiliary heads' and the brake margin's weights. Raises ConfigError."""
-    _finite_and_not_negative(cfg, SECTIONS["auxiliary"])
+    _finite_and_not_negative(cfg, tuple(n for n in SECTIONS["auxiliary"] if n != "emergency"))
+    if cfg.emergency not in EMERGENCIES:
+        raise _bad("emergency", f"must be one of {', '.join(EMERGENCIES)}, got {cfg.emergency!r}")
+    if cfg.emergency != "closing" and cfg.brake_margin == 0.0:
+        raise _bad("emergency", "says what the brake margin counts as an emergency: give brake_margin > 0")
 
 
 def check_decision(cfg: DecisionSettings) -> None:

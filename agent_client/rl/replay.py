@@ -40,6 +40,7 @@ class ReplaySamples(NamedTuple):
     next_controls: torch.Tensor  # [B, S, C] float32
     gaps: torch.Tensor  # [B] float32 [m], the first observations' gaps (NaN: a memory without them)
     next_gaps: torch.Tensor  # [B] float32 [m], the gaps one step on (the same episode's next observation)
+    lead_stops: torch.Tensor | None = None  # [B] float32 [m], the lead's stopping distance at the first observations (inf: not braking)
 
 
 class SequenceSamples(NamedTuple):
@@ -97,17 +98,20 @@ class ReplayMemory:
             not uint8 indices.
         state_size: keep with each observation the recurrent network's state before it
             (``[state_size]`` float32; 0: a frame-stack network's memory, none).
+        lead_stops: keep the distance [m] the lead needs to stop at its present deceleration
+            (privileged, inf where it is not braking; ``Config.emergency`` "stopping").
     """
 
     def __init__(
         self, capacity: int, frame_stack: int = 8, stack_stride: int = 1, frame_shape: tuple[int, int] = (FRAME_H, FRAME_W),
-        n_controls: int = 0, gaps: bool = False, continuous: bool = False, state_size: int = 0,
+        n_controls: int = 0, gaps: bool = False, continuous: bool = False, state_size: int = 0, lead_stops: bool = False,
     ):  # fmt: skip
         self.capacity, self.frame_stack, self.stack_stride = capacity, frame_stack, stack_stride
         self.frames = np.zeros((capacity, *frame_shape), np.uint8)
         self.speeds = np.zeros(capacity, np.float32)  # [m/s]
         self.controls = np.zeros((capacity, n_controls), np.float32)
         self.gaps = np.full(capacity if gaps else 0, np.nan, np.float32)  # [m]
+        self.lead_stops = np.full(capacity if lead_stops else 0, np.inf, np.float32)  # [m]
         self.pos = np.zeros(capacity, np.int32)  # step of the slot in its episode
         self.actions = np.zeros(capacity, np.float32 if continuous else np.uint8)
         self.rewards = np.zeros(capacity, np.float32)
@@ -135,15 +139,19 @@ class ReplayMemory:
             names += ("controls",)
         if len(self.gaps):
             names += ("gaps",)
+        if len(self.lead_stops):
+            names += ("lead_stops",)
         if len(self.states):
             names += ("states",)
         return {n: getattr(self, n) for n in names}
 
-    def _write(self, obs: dict[str, np.ndarray], pos: int, gap: float = np.nan, state: np.ndarray | None = None) -> None:
+    def _write(self, obs: dict[str, np.ndarray], pos: int, gap: float = np.nan, state: np.ndarray | None = None, lead_stop: float = np.inf) -> None:
         j = self.total % self.capacity
         self.frames[j] = obs["frames"][-1]
         if len(self.gaps):
             self.gaps[j] = gap
+        if len(self.lead_stops):
+            self.lead_stops[j] = lead_stop
         if len(self.states):
             if state is None:
                 raise ValueError("this memory keeps a recurrent state with each observation; none was given")
@@ -162,22 +170,23 @@ class ReplayMemory:
         self._write(obs, self._warm, state=np.zeros(self.states.shape[1], np.float32) if len(self.states) else None)  # never a start: no state to keep
         self._warm += 1
 
-    def start(self, obs: dict[str, np.ndarray], gap: float = np.nan, state: np.ndarray | None = None) -> None:
+    def start(self, obs: dict[str, np.ndarray], gap: float = np.nan, state: np.ndarray | None = None, lead_stop: float = np.inf) -> None:
         """Begin an episode with its first observation (after its :meth:`warm` frames, if any),
-        its gap [m] in a memory that keeps them, and the recurrent state before it in one that keeps those."""
-        self._write(obs, self._warm, gap, state)
+        its gap [m] and lead's stopping distance [m] in a memory that keeps them, and the
+        recurrent state before it in one that keeps those."""
+        self._write(obs, self._warm, gap, state, lead_stop)
         self._warm = 0
 
     def add(self, action: int | float, reward: float, terminated: bool, truncated: bool, next_obs: dict[str, np.ndarray], gap: float = np.nan,
-            state: np.ndarray | None = None) -> None:  # fmt: skip
-        """Record the transition from the newest slot, and the next observation (with its gap [m]
-        and the recurrent state before it)."""
+            state: np.ndarray | None = None, lead_stop: float = np.inf) -> None:  # fmt: skip
+        """Record the transition from the newest slot, and the next observation (with its gap [m],
+        its lead's stopping distance [m] and the recurrent state before it)."""
         assert self.total > 0, "start() an episode first"
         j = (self.total - 1) % self.capacity
         self.actions[j], self.rewards[j] = action, reward
         self.terminated[j], self.truncated[j] = terminated, truncated
         self.has_next[j] = True
-        self._write(next_obs, int(self.pos[j]) + 1, gap, state)
+        self._write(next_obs, int(self.pos[j]) + 1, gap, state, lead_stop)
         self.transitions += 1
 
     def _stack_index(self, idx: np.ndarray) -> np.ndarray:
@@ -350,7 +359,7 @@ class ReplayMemory:
 
 def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> ReplaySamples:
     """One :class:`ReplaySamples` from the plans of one or more memories, gathered into ``buffer``."""
-    speeds, next_speeds, controls, next_controls, gaps, next_gaps, fields = [], [], [], [], [], [], []
+    speeds, next_speeds, controls, next_controls, gaps, next_gaps, lead_stops, fields = [], [], [], [], [], [], [], []
     start = 0
     for memory, plan in parts:
         end = start + len(plan.idx)
@@ -364,6 +373,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         none = np.full(len(j), np.nan, np.float32)
         gaps.append(memory.gaps[j] if len(memory.gaps) else none)
         next_gaps.append(memory.gaps[(plan.idx + 1) % memory.capacity] if len(memory.gaps) else none)  # a valid start has a next slot
+        lead_stops.append(memory.lead_stops[j] if len(memory.lead_stops) else none)
         actions = memory.actions[j]
         fields.append((plan.idx, actions if actions.dtype == np.float32 else actions.astype(np.int64), memory.rewards[j], plan.ns))
         start = end
@@ -389,6 +399,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_controls=cat(next_controls),
         gaps=cat(gaps),
         next_gaps=cat(next_gaps),
+        lead_stops=cat(lead_stops),
     )
 
 

@@ -35,6 +35,7 @@ from agent_client.launcher import Road
 from agent_client.rl.actor_critic import explore, noise_std, noisy, student_target
 from agent_client.rl.config import Config
 from agent_client.rl.learner import STOP, Learner, PolicyTeacher
+from agent_client.rl.losses.brake_margin import lead_stop_distance
 from agent_client.rl.network import Decision, linear_schedule
 from agent_client.rl.replay import ReplayMemory
 from agent_client.rl.scalars import Progress
@@ -105,7 +106,8 @@ def train(
     if cfg.servers != 1:
         raise ValueError(f"train() runs one stream; servers={cfg.servers} needs agent_client.rl.distributed.train_distributed")
     memory = ReplayMemory(cfg.buffer_size, cfg.frame_stack, cfg.stack_stride, n_controls=make_action_type(cfg.action).n_controls, gaps=cfg.stores_gaps,
-                          continuous=is_continuous(cfg.action), state_size=cfg.hidden if cfg.recurrent != "none" else 0)  # fmt: skip
+                          continuous=is_continuous(cfg.action), state_size=cfg.hidden if cfg.recurrent != "none" else 0,
+                          lead_stops=cfg.stores_lead_stops)  # fmt: skip
 
     def load_replay(learner: Learner) -> None:
         step = int(learner.saved.get("global_step", 0))
@@ -175,7 +177,7 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 policy.reset()
                 for frame in info.get("preroll", ()):
                     memory.warm(frame)
-                memory.start(obs, info["gap"], policy.state())  # the gap: the auxiliary head's target, kept apart from obs
+                memory.start(obs, info["gap"], policy.state(), lead_stop_distance(info["v_lead"], info["a_lead"]))  # privileged: kept apart from obs
                 if state.episodes == 0:  # what the network sees, once
                     log.frames("charts/first_observation", obs["frames"], state.global_step)
                 taken, episode_return, episode_len = [], 0.0, 0
@@ -185,7 +187,8 @@ def _loop(cfg: Config, learner: Learner, memory: ReplayMemory, env: Any, state: 
                 decision, stored = _choose(cfg, learner, env, obs, info, exploring, state.global_step)
                 obs, reward, terminated, truncated, info = decision.step(env)
                 taken.append(list(decision))
-                memory.add(stored, reward, terminated, truncated, obs, info["gap"], policy.state())  # a recurrent state: the one before obs
+                memory.add(stored, reward, terminated, truncated, obs, info["gap"], policy.state(),  # a recurrent state: the one before obs
+                           lead_stop_distance(info["v_lead"], info["a_lead"]))  # fmt: skip
                 episode_return += reward
                 episode_len += 1
                 done = terminated or truncated

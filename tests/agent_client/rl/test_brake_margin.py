@@ -16,10 +16,14 @@ from agent_client.rl.losses.brake_margin import (
     EMERGENCY_SHARE,
     brake_margin_loss,
     emergencies,
+    lead_stop_distance,
+    margin_loss,
+    stopping_emergencies,
 )
 from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
 from protocol.constants import A_MIN, MIN_GAP
+from tests.agent_client.rl.losses.loss_batches import forward, tiny_batch, tiny_net
 
 
 def test_an_emergency_is_a_closing_speed_that_needs_a_hard_brake_to_stop_short():
@@ -107,3 +111,72 @@ def test_a_sample_carries_the_gap_one_step_on_within_the_episode():
     b = memory.sample(32, np.random.default_rng(1), 1, 0.99)
     np.testing.assert_array_equal(b.next_gaps.numpy(), memory.gaps[b.indices + 1])
     assert 15 not in b.indices.tolist() and memory.gaps[16] == 200.0  # slot 15 ends the first episode; 16 starts the next
+
+
+def test_a_braking_leads_stop_is_an_emergency_seconds_before_the_closing_speed_says_so():
+    # A distant stop as ice-gap touched one (seed 9): host 33.5 m/s, the lead braking at 4 m/s^2
+    # from 21 m/s. At 133 m its closing speed of 12.5 m/s needs 0.6 m/s^2 to stop short, and
+    # its stop (55 m on) 3.0 m/s^2; at 100 m the stop needs 3.7, past the 3.3 (0.6 of the full
+    # brake) that makes an emergency, while the closing speed still says 0.8.
+    assert lead_stop_distance(21.0, -4.0) == pytest.approx(21.0**2 / 8.0)
+    assert lead_stop_distance(21.0, 0.0) == float("inf") and lead_stop_distance(0.0, -4.0) == float(
+        "inf"
+    )
+    gaps, v_host = torch.tensor([133.0, 100.0, 133.0, 133.0]), torch.full((4,), 33.5)
+    stops = torch.tensor(
+        [lead_stop_distance(21.0, -4.0), lead_stop_distance(21.0, -4.0), float("inf"), float("nan")]
+    )
+    assert not emergencies(gaps, gaps - 12.5 * 0.1, 0.1).any()
+    hit = stopping_emergencies(gaps, v_host, stops)
+    assert not emergencies(gaps[1:2], gaps[1:2] - 12.5 * 0.1, 0.1).any()
+    # a lead that is not braking (inf) or a memory without the column (NaN): never
+    assert hit.tolist() == [False, True, False, False]
+
+
+def test_the_margin_loss_adds_the_stopping_emergencies_only_where_the_memory_keeps_lead_stops():
+    net, b = tiny_net(0), tiny_batch(0)
+    base = margin_loss(forward(net, b))
+    assert (
+        margin_loss(forward(net, b._replace(lead_stops=torch.full((4,), float("nan"))))).item()
+        == base.item()
+    )
+    near = b._replace(
+        gaps=torch.full((4,), 30.0),
+        next_gaps=torch.full((4,), 30.0),
+        speeds=torch.full_like(b.speeds, 30.0),
+    )
+    assert (
+        margin_loss(forward(net, near)).item() == 0.0
+    )  # no closing: no emergency of the closing kind
+    stopping = margin_loss(forward(net, near._replace(lead_stops=torch.full((4,), 10.0))))
+    assert stopping.item() > 0.0  # 30 m/s toward a lead stopping within 38 m: every state
+
+
+def test_the_lead_stops_are_kept_sampled_saved_and_loaded_with_the_transitions(tmp_path):
+    memory, stacker = ReplayMemory(64, 8, 1, gaps=True, lead_stops=True), FrameStacker(8, 1)
+    obs = stacker.push(np.zeros((FRAME_H, FRAME_W), np.uint8), 20.0)
+    memory.start(obs, 50.0, lead_stop=float("inf"))
+    for i in range(30):
+        memory.add(3, 0.0, False, False, obs, 49.0 - i, lead_stop=float(i))
+    b = memory.sample(16, np.random.default_rng(1), 1, 0.99)
+    assert b.lead_stops is not None
+    np.testing.assert_array_equal(b.lead_stops.numpy(), memory.lead_stops[b.indices])
+    memory.save(tmp_path / "replay.npz", 30)
+    again = ReplayMemory(64, 8, 1, gaps=True, lead_stops=True)
+    assert again.load(tmp_path / "replay.npz") == 30
+    np.testing.assert_array_equal(again.lead_stops[:31], memory.lead_stops[:31])
+    assert (
+        memory.lead_stops[0] == float("inf")
+        and "lead_stops" not in ReplayMemory(64, 8, 1, gaps=True)._arrays()
+    )
+
+
+def test_config_checks_the_emergency_kind():
+    assert Config(reward="gap", brake_margin=1.0, emergency="stopping").stores_lead_stops
+    assert not Config(reward="gap", brake_margin=1.0).stores_lead_stops
+    with pytest.raises(ConfigError) as e:
+        Config(reward="gap", emergency="stopping")  # no brake margin to apply it
+    assert e.value.field == "emergency"
+    with pytest.raises(ConfigError) as e:
+        Config(reward="gap", brake_margin=1.0, emergency="braking")
+    assert e.value.field == "emergency"
