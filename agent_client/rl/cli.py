@@ -249,12 +249,12 @@ def _refuse_resume_changes(ctx: click.Context, cfg: Config, run: Path) -> None:
 
 
 @click.command("train")
-@click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="A run's config.json: its settings become the defaults.")
+@click.option("--config", "config_file", default=None, is_eager=True, expose_value=False, callback=_load_config, type=click.Path(dir_okay=False, exists=True), help="A run's config.json: its settings as defaults.")
 @click.option("--out", "out", required=True, is_eager=True, callback=_resume_defaults, type=click.Path(file_okay=False), help="Run folder, e.g. runs/ice-gap.")
 @click.option("--resume", is_flag=True, is_eager=True, callback=_resume_defaults, help="Continue --out from latest.pt with its config.json's settings.")
 @click.option("--overwrite", is_flag=True, help="First remove a previous run's files in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
-@click.option("--ray", "use_ray", is_flag=True, help="Run servers and actors as Ray actors (vacc[ray]).")
+@click.option("--ray", "use_ray", is_flag=True, help="Servers and actors as Ray actors (vacc[ray]).")
 @click.option("--ray-address", default=None, help="With --ray: 'auto' or HOST:PORT (default: local).")
 @click.option("--actor-cpus", default=1.0, show_default=True, type=click.FloatRange(min=0.0, min_open=True), help="With --ray: CPUs per actor and its server.")
 @click.option("--max-restarts", default=3, show_default=True, type=click.IntRange(min=0), help="Restarts of a dead actor (servers > 1 or --ray).")

@@ -41,7 +41,7 @@ DECISIONS = ("argmax", "mean")  # how the network's outputs become the force (ag
 RECURRENT = ("none", "gru")  # the trunk over time: none (the frame stack alone) or a GRU (agent_client.rl.network)
 ACTOR_LEVELS = ("none", *RAMP_ACTIONS)  # the actor-critic's output: a tanh, or a mean over a ramp type's levels
 TRUNK_TRAINING = ("critic", "frozen", "critic-copy")  # who trains the actor-critic's trunk: the critic (DrQ-v2), none, or the critic its own copy
-EMERGENCIES = ("closing", "stopping")  # the brake margin's emergencies: the lead holds its speed, or brakes on to a stop
+EMERGENCIES = ("closing", "stopping", "graded")  # the brake margin's emergencies: the lead holds its speed, or brakes on to a stop; graded: any brake that suffices
 
 # Settings a resumed run may change: none of them touches the training RNG or the
 # learning (evaluations and checkpoints draw nothing from it), so a run resumed with
@@ -260,7 +260,7 @@ class AuxiliarySettings:
     brake_margin: float = 0.0
     """(DQN) weight of a full-brake-first loss in emergencies."""
     emergency: str = "closing"
-    """(brake margin) the lead holds speed, or stops."""
+    """(brake margin) lead holds speed, stops; graded: enough brake."""
 
     def __post_init__(self) -> None:
         check_auxiliary(self)
@@ -361,7 +361,7 @@ class Config(ActorCriticSettings, StreamsSettings, DecisionSettings, AuxiliarySe
     def stores_lead_stops(self) -> bool:
         """Whether the replay keeps the distance the lead needs to stop at its present
         deceleration (privileged, never an input): the brake margin's ``stopping`` emergencies."""
-        return self.brake_margin > 0.0 and self.emergency == "stopping"
+        return self.brake_margin > 0.0 and self.emergency != "closing"
 
 
 # The sections, by name; each validates itself, and check_across_sections reads several.
@@ -543,6 +543,8 @@ def check_across_sections(cfg: Config) -> None:
     """The checks that read more than one section. Raises ConfigError."""
     if cfg.brake_margin > 0.0 and cfg.teacher != "none":
         raise _bad("brake_margin", "is a Double DQN loss; a teacher run learns the teacher's labels instead")
+    if cfg.emergency == "graded" and cfg.action != "levels":
+        raise _bad("emergency", f"'graded' reads the outputs as the 21 force levels: it needs action 'levels', got {cfg.action!r}")
     if cfg.decision == "mean" and (cfg.teacher == "none" or cfg.action not in RAMP_ACTIONS):
         raise _bad("decision", "'mean' reads the outputs as a teacher's labels over ramp targets: it needs a teacher and action ramp or ramp-fine")
     if cfg.servers != 1 and (needs := single_stream_only(cfg)) is not None:

@@ -6,6 +6,8 @@ network input): a closing speed that only a hard brake still stops :data:`MIN_GA
 With ``emergency`` "stopping" also a braking lead's stop: a lead braking on to a stand
 leaves the host its gap plus the lead's stopping distance (stored too), and a lead that
 brakes from speed makes that the tighter bound long before the closing speed says so.
+With "graded" the margin asks, in the same emergencies, for any force level that brakes
+as hard as the state needs, not for the full brake: a firm stop, not a jolt.
 """
 
 from __future__ import annotations
@@ -19,11 +21,11 @@ from agent_client.rewards import CONTROL_PERIOD
 from agent_client.rl.config import Config
 from agent_client.rl.losses.aux_heads import closing_speed
 from agent_client.rl.losses.term import Forward, LossTerm
-from protocol.constants import A_MIN, MIN_GAP
+from protocol.constants import A_MIN, FORCE_LEVELS, MIN_GAP
 
 __all__ = [
-    "NAME", "BRAKE_MARGIN", "EMERGENCY_SHARE", "lead_stop_distance", "emergencies", "stopping_emergencies", "brake_margin_loss",
-    "margin_loss", "margin_term",
+    "NAME", "BRAKE_MARGIN", "EMERGENCY_SHARE", "lead_stop_distance", "emergencies", "stopping_emergencies", "needed_deceleration",
+    "brake_margin_loss", "margin_loss", "graded_margin_loss", "margin_term",
 ]  # fmt: skip
 
 NAME = "losses/brake_margin"
@@ -63,13 +65,31 @@ def stopping_emergencies(gaps: torch.Tensor, v_host: torch.Tensor, lead_stops: t
     return (need >= EMERGENCY_SHARE * -A_MIN) & torch.isfinite(room)
 
 
-def brake_margin_loss(q_all: torch.Tensor, emergency: torch.Tensor) -> torch.Tensor:
+def needed_deceleration(gaps: torch.Tensor, next_gaps: torch.Tensor, v_host: torch.Tensor, lead_stops: torch.Tensor, dt: float) -> torch.Tensor:
+    """``[B]`` [m/s^2] the deceleration that stops :data:`MIN_GAP` short of the lead, the larger
+    of the closing speed's (the lead holds its speed) and the braking lead's stop's; inf where
+    the host is inside MIN_GAP and closing, 0 where neither applies (NaN gaps or lead stops)."""
+    closing = closing_speed(gaps, next_gaps, dt)
+    room = gaps - MIN_GAP
+    by_closing = torch.where(room > 0.0, closing.square() / (2.0 * room.clamp(min=1e-3)), torch.full_like(room, torch.inf))
+    by_closing = torch.where((closing > 0.0) & torch.isfinite(closing), by_closing, torch.zeros_like(room))
+    stop_room = room + lead_stops
+    by_stop = torch.where(torch.isfinite(stop_room), v_host.square() / (2.0 * stop_room.clamp(min=1e-3)), torch.zeros_like(room))
+    return torch.maximum(by_closing, by_stop)
+
+
+def brake_margin_loss(q_all: torch.Tensor, emergency: torch.Tensor, good: torch.Tensor | None = None) -> torch.Tensor:
     """DQfD's large-margin loss toward the full brake, max_a [Q(s, a) + l(a)] - Q(s, brake),
     l = :data:`BRAKE_MARGIN` off the brake and 0 on it, averaged over the ``emergency``
-    states of the batch (0 where there is none): 0 once the brake leads by the margin."""
-    margins = torch.full_like(q_all[0], BRAKE_MARGIN)
-    margins[EMERGENCY_LEVEL] = 0.0
-    gaps = (q_all + margins).max(dim=1).values - q_all[:, EMERGENCY_LEVEL]  # [B] >= 0
+    states of the batch (0 where there is none): 0 once the brake leads by the margin.
+    ``good`` ``[B, A]`` (bool) widens the brake to a set: l is 0 on it, and the best of it
+    must lead."""
+    if good is None:
+        good = torch.zeros_like(q_all, dtype=torch.bool)
+        good[:, EMERGENCY_LEVEL] = True
+    margins = torch.where(good, 0.0, BRAKE_MARGIN)
+    best_good = q_all.masked_fill(~good, -torch.inf).max(dim=1).values
+    gaps = (q_all + margins).max(dim=1).values - best_good  # [B] >= 0
     w = emergency.to(q_all.dtype)
     return (gaps * w).sum() / w.sum().clamp(min=1.0)
 
@@ -84,6 +104,20 @@ def margin_loss(out: Forward) -> torch.Tensor:
     return brake_margin_loss(out.q, emergency)
 
 
+def graded_margin_loss(out: Forward) -> torch.Tensor:
+    """:func:`brake_margin_loss` toward every force level (of the "levels" action) that brakes
+    at least as hard as :func:`needed_deceleration`, in the states that need at least
+    :data:`EMERGENCY_SHARE` of the full brake; the full brake always counts."""
+    b, dev = out.batch, out.device
+    stops = b.lead_stops if b.lead_stops is not None else torch.full_like(b.gaps, torch.nan)
+    need = needed_deceleration(b.gaps.to(dev), b.next_gaps.to(dev), b.speeds[:, -1].to(dev), stops.to(dev), CONTROL_PERIOD)  # [B]
+    emergency = need >= EMERGENCY_SHARE * -A_MIN
+    decel = torch.tensor(FORCE_LEVELS, dtype=out.q.dtype, device=dev) * A_MIN  # [A] m/s^2 of each level (> 0: a brake)
+    good = decel[None, :] >= need[:, None]
+    good[:, EMERGENCY_LEVEL] = True
+    return brake_margin_loss(out.q, emergency, good)
+
+
 def margin_term(cfg: Config) -> LossTerm:
     """The brake margin's loss, times ``cfg.brake_margin``."""
-    return LossTerm(NAME, cfg.brake_margin, margin_loss)
+    return LossTerm(NAME, cfg.brake_margin, graded_margin_loss if cfg.emergency == "graded" else margin_loss)

@@ -16,13 +16,15 @@ from agent_client.rl.losses.brake_margin import (
     EMERGENCY_SHARE,
     brake_margin_loss,
     emergencies,
+    graded_margin_loss,
     lead_stop_distance,
     margin_loss,
+    needed_deceleration,
     stopping_emergencies,
 )
 from agent_client.rl.replay import ReplayMemory
 from agent_client.stacker import FrameStacker
-from protocol.constants import A_MIN, MIN_GAP
+from protocol.constants import A_MIN, FORCE_LEVELS, MIN_GAP
 from tests.agent_client.rl.losses.loss_batches import forward, tiny_batch, tiny_net
 
 
@@ -179,4 +181,42 @@ def test_config_checks_the_emergency_kind():
     assert e.value.field == "emergency"
     with pytest.raises(ConfigError) as e:
         Config(reward="gap", brake_margin=1.0, emergency="braking")
+    assert e.value.field == "emergency"
+
+
+def test_the_needed_deceleration_is_the_larger_of_the_closing_speeds_and_the_stops():
+    inf, nan = float("inf"), float("nan")
+    gaps = torch.tensor([52.0, 52.0, 52.0, 1.5, 52.0])
+    closing = torch.tensor([10.0, 0.0, -5.0, 1.0, nan])
+    stops = torch.tensor([inf, 48.0, nan, inf, nan])
+    need = needed_deceleration(gaps, gaps - closing * 0.1, torch.full((5,), 20.0), stops, 0.1)
+    # 10^2 / (2 * 50); 20^2 / (2 * 98); opening and no stop stored; inside MIN_GAP closing; nothing stored
+    assert need.tolist() == pytest.approx([1.0, 400.0 / 196.0, 0.0, inf, 0.0])
+
+
+def test_the_graded_margin_asks_for_a_brake_as_hard_as_needed_not_the_full_brake():
+    net, b = tiny_net(0), tiny_batch(0)
+    # 30 m/s toward a lead that stops within 38 m of a 30 m gap: 900 / (2 * 66) = 6.8 m/s^2, past the
+    # full brake: only the full brake counts, as in the plain margin
+    hard = b._replace(gaps=torch.full((4,), 30.0), next_gaps=torch.full((4,), 30.0), speeds=torch.full_like(b.speeds, 30.0),
+                      lead_stops=torch.full((4,), 38.0))  # fmt: skip
+    out = forward(net, hard)
+    assert graded_margin_loss(out).item() == pytest.approx(margin_loss(out).item())
+    # 20 m/s, the same room: 400 / 132 = 3.0 m/s^2, under 0.6 of the full brake: no emergency
+    assert graded_margin_loss(forward(net, hard._replace(speeds=torch.full_like(b.speeds, 20.0)))).item() == 0.0
+    # 24 m/s: 4.4 m/s^2 needed; a network whose best level brakes at 0.9 (5.0 m/s^2) by the margin owes nothing
+    firm = hard._replace(speeds=torch.full_like(b.speeds, 24.0))
+    q = torch.zeros(4, len(FORCE_LEVELS))
+    q[:, 1] = 1.0  # level 1: force -0.9
+    out = forward(net, firm)._replace(q=q)
+    assert graded_margin_loss(out).item() == 0.0 and margin_loss(out).item() > 0.0  # the plain margin still wants the full brake
+    q2 = q.clone()
+    q2[:, 3] = 2.0  # level 3 (-0.7: 3.85 m/s^2) leads: not enough
+    assert graded_margin_loss(forward(net, firm)._replace(q=q2)).item() == pytest.approx(2.0 + BRAKE_MARGIN - 1.0)
+
+
+def test_graded_needs_the_force_levels():
+    assert Config(reward="gap", brake_margin=1.0, emergency="graded").stores_lead_stops
+    with pytest.raises(ConfigError) as e:
+        Config(reward="gap", brake_margin=1.0, emergency="graded", action="steps")
     assert e.value.field == "emergency"
