@@ -94,7 +94,7 @@ def test_reseed_from_names_a_stage_and_is_in_the_digest():
     _refuse(c, "recipe.reseed_from", "'nowhere' is no stage")
 
 
-@pytest.mark.parametrize(("late", "other"), [("critic_warmup", 500), ("actor_levels", "ramp")])
+@pytest.mark.parametrize(("late", "other"), [("critic_warmup", 500), ("actor_levels", "ramp"), ("emergency", "stopping")])
 def test_an_option_added_late_leaves_digests_and_keys_alone_at_its_inert_value(late, other):
     """critic_warmup and actor_levels came after the recipes were digested: written in at
     their inert values they change no digest and no stage key (runs and --reuse stay valid);
