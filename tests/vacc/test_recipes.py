@@ -43,8 +43,8 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
     from agent_client.rl.config import config_dict
 
     models = Path(__file__).resolve().parents[2] / "models"
-    chains = (("ice-gap", "bm10", "g2"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1"), ("ice-eco", "busy-road", "sg-decide"),
-              ("ev-gap", "h05c", "sm"), ("ev-eco", "calm", "mean3"))  # fmt: skip
+    chains = (("ice-gap", "stop", "final"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1"), ("ice-eco", "busy-road", "sg-decide"),
+              ("ev-gap", "stop", "h05c"), ("ev-eco", "calm", "mean3"))  # fmt: skip
     for name, stage, parent in chains:
         path = models / f"{name}.pt"
         shipped = config_dict(checkpoint_config(read_checkpoint(path), path))
