@@ -40,7 +40,7 @@ class ReplaySamples(NamedTuple):
     next_controls: torch.Tensor  # [B, S, C] float32
     gaps: torch.Tensor  # [B] float32 [m], the first observations' gaps (NaN: a memory without them)
     next_gaps: torch.Tensor  # [B] float32 [m], the gaps one step on (the same episode's next observation)
-    lead_stops: torch.Tensor | None = None  # [B] float32 [m], the lead's stopping distance at the first observations (inf: not braking)
+    lead_stops: torch.Tensor | None = None  # [B] float32 [m], the lead's stopping distance at the first observations (inf: not braking; None: not kept)
 
 
 class SequenceSamples(NamedTuple):
@@ -373,7 +373,8 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         none = np.full(len(j), np.nan, np.float32)
         gaps.append(memory.gaps[j] if len(memory.gaps) else none)
         next_gaps.append(memory.gaps[(plan.idx + 1) % memory.capacity] if len(memory.gaps) else none)  # a valid start has a next slot
-        lead_stops.append(memory.lead_stops[j] if len(memory.lead_stops) else none)
+        if len(memory.lead_stops):
+            lead_stops.append(memory.lead_stops[j])
         actions = memory.actions[j]
         fields.append((plan.idx, actions if actions.dtype == np.float32 else actions.astype(np.int64), memory.rewards[j], plan.ns))
         start = end
@@ -399,7 +400,7 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         next_controls=cat(next_controls),
         gaps=cat(gaps),
         next_gaps=cat(next_gaps),
-        lead_stops=cat(lead_stops),
+        lead_stops=cat(lead_stops) if lead_stops else None,  # None: no memory keeps them
     )
 
 

@@ -99,7 +99,7 @@ def margin_loss(out: Forward) -> torch.Tensor:
     :func:`stopping_emergencies` where the memory keeps the lead's stopping distances)."""
     b, dev = out.batch, out.device
     emergency = emergencies(b.gaps.to(dev), b.next_gaps.to(dev), CONTROL_PERIOD)  # [B]
-    if b.lead_stops is not None:  # NaN in a memory that keeps none: no emergency
+    if b.lead_stops is not None:  # kept only with emergency "stopping"
         emergency |= stopping_emergencies(b.gaps.to(dev), b.speeds[:, -1].to(dev), b.lead_stops.to(dev))  # speeds: the newest last
     return brake_margin_loss(out.q, emergency)
 

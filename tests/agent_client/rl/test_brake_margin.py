@@ -167,10 +167,13 @@ def test_the_lead_stops_are_kept_sampled_saved_and_loaded_with_the_transitions(t
     again = ReplayMemory(64, 8, 1, gaps=True, lead_stops=True)
     assert again.load(tmp_path / "replay.npz") == 30
     np.testing.assert_array_equal(again.lead_stops[:31], memory.lead_stops[:31])
-    assert (
-        memory.lead_stops[0] == float("inf")
-        and "lead_stops" not in ReplayMemory(64, 8, 1, gaps=True)._arrays()
-    )
+    assert memory.lead_stops[0] == float("inf")
+    plain = ReplayMemory(64, 8, 1, gaps=True)
+    plain.start(obs, 50.0)
+    for i in range(30):
+        plain.add(3, 0.0, False, False, obs, 49.0 - i)
+    assert "lead_stops" not in plain._arrays()
+    assert plain.sample(16, np.random.default_rng(1), 1, 0.99).lead_stops is None  # a memory without them samples none
 
 
 def test_config_checks_the_emergency_kind():
