@@ -56,13 +56,19 @@ def lead_stop_distance(v_lead: float, a_lead: float) -> float:
     return v_lead * v_lead / (2.0 * -a_lead)
 
 
+def _stop_need(gaps: torch.Tensor, v_host: torch.Tensor, lead_stops: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``[B]`` [m/s^2] the deceleration that stops :data:`MIN_GAP` short of a lead braking on to
+    a stand, and ``[B]`` bool where that is defined (a finite stopping distance is kept)."""
+    room = gaps - MIN_GAP + lead_stops
+    return v_host.square() / (2.0 * room.clamp(min=1e-3)), torch.isfinite(room)
+
+
 def stopping_emergencies(gaps: torch.Tensor, v_host: torch.Tensor, lead_stops: torch.Tensor) -> torch.Tensor:
     """``[B]`` bool: the states where stopping :data:`MIN_GAP` short of a lead that brakes on
     to a stand (within its stopping distance ``lead_stops`` [m], inf: not braking) needs at
     least :data:`EMERGENCY_SHARE` of the full brake, from the host's speed ``v_host`` [m/s]."""
-    room = gaps - MIN_GAP + lead_stops
-    need = v_host.square() / (2.0 * room.clamp(min=1e-3))
-    return (need >= EMERGENCY_SHARE * -A_MIN) & torch.isfinite(room)
+    need, defined = _stop_need(gaps, v_host, lead_stops)
+    return (need >= EMERGENCY_SHARE * -A_MIN) & defined
 
 
 def needed_deceleration(gaps: torch.Tensor, next_gaps: torch.Tensor, v_host: torch.Tensor, lead_stops: torch.Tensor, dt: float) -> torch.Tensor:
@@ -73,8 +79,8 @@ def needed_deceleration(gaps: torch.Tensor, next_gaps: torch.Tensor, v_host: tor
     room = gaps - MIN_GAP
     by_closing = torch.where(room > 0.0, closing.square() / (2.0 * room.clamp(min=1e-3)), torch.full_like(room, torch.inf))
     by_closing = torch.where((closing > 0.0) & torch.isfinite(closing), by_closing, torch.zeros_like(room))
-    stop_room = room + lead_stops
-    by_stop = torch.where(torch.isfinite(stop_room), v_host.square() / (2.0 * stop_room.clamp(min=1e-3)), torch.zeros_like(room))
+    need, defined = _stop_need(gaps, v_host, lead_stops)
+    by_stop = torch.where(defined, need, torch.zeros_like(room))
     return torch.maximum(by_closing, by_stop)
 
 
