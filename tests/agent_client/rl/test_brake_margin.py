@@ -116,7 +116,7 @@ def test_a_sample_carries_the_gap_one_step_on_within_the_episode():
 
 
 def test_a_braking_leads_stop_is_an_emergency_seconds_before_the_closing_speed_says_so():
-    # A distant stop as ice-gap touched one (seed 9): host 33.5 m/s, the lead braking at 4 m/s^2
+    # A distant stop like those ice-gap touched (values made round): host 33.5 m/s, the lead braking at 4 m/s^2
     # from 21 m/s. At 133 m its closing speed of 12.5 m/s needs 0.6 m/s^2 to stop short, and
     # its stop (55 m on) 3.0 m/s^2; at 100 m the stop needs 3.7, past the 3.3 (0.6 of the full
     # brake) that makes an emergency, while the closing speed still says 0.8.
