@@ -43,7 +43,7 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
     from agent_client.rl.config import config_dict
 
     models = Path(__file__).resolve().parents[2] / "models"
-    chains = (("ice-gap", "stop", "final"), ("ev-force", "mix", "ev-force"), ("ice-force", "f05a", "f1"), ("ice-eco", "busy-road", "sg-decide"),
+    chains = (("ice-gap", "stop", "final"), ("ev-force", "mix", "ev-force"), ("ice-force", "stop", "f05a"), ("ice-eco", "busy-road", "sg-decide"),
               ("ev-gap", "stop", "h05c"), ("ev-eco", "calm", "mean3"))  # fmt: skip
     for name, stage, parent in chains:
         path = models / f"{name}.pt"
