@@ -19,6 +19,7 @@ from vacc.recipes import (
 )
 
 RECIPES = sorted(p.stem for p in RECIPES_DIR.glob("*.toml"))
+EV_FORCE_CHAIN = Path(__file__).parent / "data" / "ev-force-chain.toml"  # a chain of four train stages
 SHIPPED = ("ice-gap", "ice-force", "ice-eco", "ev-gap", "ev-force", "ev-eco")
 
 
@@ -43,7 +44,7 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
     from agent_client.rl.config import config_dict
 
     models = Path(__file__).resolve().parents[2] / "models"
-    chains = (("ice-gap", "stop", "final"), ("ev-force", "mix", "ev-force"), ("ice-force", "stop", "f05a"), ("ice-eco", "busy-road", "sg-decide"),
+    chains = (("ice-gap", "stop", "final"), ("ev-force", "force-mix", "ev-gap"), ("ice-force", "stop", "f05a"), ("ice-eco", "busy-road", "sg-decide"),
               ("ev-gap", "stop", "h05c"), ("ev-eco", "calm", "mean3"))  # fmt: skip
     for name, stage, parent in chains:
         path = models / f"{name}.pt"
@@ -55,7 +56,7 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
 
 
 def test_digest_is_of_the_content_not_the_layout(tmp_path):
-    text = (RECIPES_DIR / "ev-force.toml").read_text()
+    text = EV_FORCE_CHAIN.read_text()
     content = tomllib.loads(text)
     for stage in content["stage"]:
         stage.pop("known_weights", None)  # an outcome, left out (below)
@@ -63,7 +64,7 @@ def test_digest_is_of_the_content_not_the_layout(tmp_path):
         for late in LATE_OPTIONS:  # options added late, at their inert values: left out
             stage.pop(late, None)
     a = digest(content)
-    assert a == load_recipe("ev-force").digest
+    assert a == load_recipe(EV_FORCE_CHAIN).digest
     assert parse_recipe(tomllib.loads("# a comment\n" + text), Path("x.toml")).digest == a
     assert parse_recipe(tomllib.loads(text.replace("seed = 72", "seed = 73")), Path("x.toml")).digest != a
 
@@ -118,7 +119,7 @@ def test_an_option_added_late_leaves_digests_and_keys_alone_at_its_inert_value(l
 
 
 def _content() -> dict:
-    return tomllib.loads((RECIPES_DIR / "ev-force.toml").read_text())
+    return tomllib.loads(EV_FORCE_CHAIN.read_text())
 
 
 def _refuse(content: dict, *words: str) -> None:

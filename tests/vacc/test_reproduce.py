@@ -39,13 +39,14 @@ def _finish(proc: subprocess.Popen, timeout: float = 600) -> str:
     return out
 
 
-SHARED = "ev-force"  # its smoke run is also the kill test's uninterrupted run: the kill test checks it
+EV_FORCE_CHAIN = Path(__file__).parent / "data" / "ev-force-chain.toml"  # ev-force's chain until 2026-12-06: four train stages
+SHARED = str(EV_FORCE_CHAIN)  # its smoke run is also the kill test's uninterrupted run: the kill test checks it
 
 
 def test_seed_shift_rule():
     from vacc.recipes import load_recipe
 
-    r = load_recipe("ev-force")
+    r = load_recipe(EV_FORCE_CHAIN)
     assert shifted_seed(72, r, r.seed) == 72 and shifted_seed(72, r, r.seed + 2) == 72 + 2 * SEED_STRIDE
 
 
@@ -55,7 +56,7 @@ def test_a_tail_replicate_keeps_the_recipe_seeds_before_its_first_stage(tmp_path
     from vacc.recipes import load_recipe
     from vacc.reproduce import replicate_of, reproduce, stage_key
 
-    r = load_recipe("ev-force")
+    r = load_recipe(EV_FORCE_CHAIN)
     plain = {"seed": r.seed, "smoke": False, "reseed_from": None}
     tail = {"seed": r.seed + 1, "smoke": False, "reseed_from": "ev-force"}
     assert [replicate_of(r, s, tail) for s in r.stages] == [r.seed, r.seed, r.seed + 1, r.seed + 1]
@@ -79,14 +80,14 @@ def test_the_recipes_reseed_from_sets_the_tail_and_no_seed_goes_below_zero(tmp_p
     from vacc.recipes import load_recipe, parse_recipe
     from vacc.reproduce import replicate_of, reproduce
 
-    content = tomllib.loads(load_recipe("ev-force").path.read_text())
+    content = tomllib.loads(load_recipe(EV_FORCE_CHAIN).path.read_text())
     content["recipe"].update(seed=3, reseed_from="ev-force")
     content["stage"][2]["seed"] += 3 * SEED_STRIDE
     r = parse_recipe(content, tmp_path / "ev-force.toml")
     default = {"seed": 0, "smoke": False, "reseed_from": None}
     assert [replicate_of(r, s, default) for s in r.stages] == [3, 3, 0, 0]
     assert [replicate_of(r, s, {**default, "reseed_from": "mix"}) for s in r.stages] == [3, 3, 3, 0]
-    assert shifted_seed(r.stages[2].options["seed"], r, 0) == load_recipe("ev-force").stage("ev-force").options["seed"]
+    assert shifted_seed(r.stages[2].options["seed"], r, 0) == load_recipe(EV_FORCE_CHAIN).stage("ev-force").options["seed"]
     with pytest.raises(click.ClickException, match=r"--seed 0: stage gap-scratch's seed would be .* below 0 .*give --seed >= 3"):
         reproduce(r, tmp_path / "x", seed=0, reseed_from="gap-scratch")
     assert not (tmp_path / "x").exists()
@@ -166,7 +167,7 @@ def test_a_stage_on_other_kernels_goes_on_in_a_fresh_process(tmp_path):
     itself again with the stage's, keeping the stages it finished."""
     recipe = tmp_path / "mixed.toml"
     # every stage on the recipe's AVX2 but ev-force, on this CPU's own kernels
-    plain = "".join(line for line in (RECIPES_DIR / "ev-force.toml").read_text().splitlines(True) if not line.startswith("cpu_path = "))
+    plain = "".join(line for line in EV_FORCE_CHAIN.read_text().splitlines(True) if not line.startswith("cpu_path = "))
     recipe.write_text(plain.replace('name = "ev-force"\nkind = "train"\n', 'name = "ev-force"\nkind = "train"\ncpu_path = "native"\n'))
     native = subprocess.run([sys.executable, "-c", "import torch; print(torch.backends.cpu.get_cpu_capability())"], capture_output=True, text=True, check=True).stdout.strip()
     proc = _reproduce(str(recipe), tmp_path / "run")
@@ -183,8 +184,12 @@ def test_a_stage_on_other_kernels_goes_on_in_a_fresh_process(tmp_path):
     assert "stage ev-force was made on native kernels, not avx2: kept" in out and "stage gap-scratch was made" not in out, out[-2000:]
 
 
-def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None:
+def _check_smoke_run(source: str, folder: Path, returncode: int, out: str) -> None:
+    from vacc.recipes import load_recipe
+
     assert returncode == 0, out[-2000:]
+    recipe = load_recipe(source)
+    name = recipe.name
     model = torch.load(folder / f"{name}.pt", weights_only=True)
     made = model["lineage"]["recipe"]
     assert made["name"] == name and len(made["digest"]) == 64 and made["stage"] and made["smoke"]
@@ -194,9 +199,6 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
     for where in ("tests", "random"):
         assert {(where, w) for w in ("mean gap RMSE (m)", "mean ISO jerk share", "energy / the ACC's")} <= measured, measured
     assert ("safety", "closest gap (m)") in measured
-    from vacc.recipes import load_recipe
-
-    recipe = load_recipe(name)
     # the gates drive on the recipe's kernels whatever the last stage's (ev-force's: AVX-512)
     assert report["cpu_path"] == recipe.cpu_path, report["cpu_path"]
     if recipe.cpu_path == "avx2":
@@ -220,7 +222,7 @@ def _check_smoke_run(name: str, folder: Path, returncode: int, out: str) -> None
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [n for n in RECIPES if n != SHARED])
+@pytest.mark.parametrize("name", RECIPES)
 def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path):
     proc = _reproduce(name, tmp_path)
     out = _finish(proc)
@@ -247,8 +249,8 @@ def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
     proc = _reproduce(SHARED, killed)
     out = _finish(proc)
     assert proc.returncode == 0, out[-2000:]
-    a = torch.load(whole / f"{SHARED}.pt", weights_only=True)
-    b = torch.load(killed / f"{SHARED}.pt", weights_only=True)
+    a = torch.load(whole / "ev-force.pt", weights_only=True)
+    b = torch.load(killed / "ev-force.pt", weights_only=True)
     assert a["model"].keys() == b["model"].keys()
     assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
     assert a["lineage"] == b["lineage"]
