@@ -378,6 +378,8 @@ def _assemble(parts: list[tuple[ReplayMemory, _Plan]], buffer: torch.Tensor) -> 
         actions = memory.actions[j]
         fields.append((plan.idx, actions if actions.dtype == np.float32 else actions.astype(np.int64), memory.rewards[j], plan.ns))
         start = end
+    if lead_stops and len(lead_stops) != len(parts):  # a column for some rows only would misalign the batch
+        raise ValueError("replay memories sampled together must all keep the lead stops or none")
 
     def cat(arrays: list[np.ndarray], dtype: Any = None) -> torch.Tensor:
         a = arrays[0] if len(arrays) == 1 else np.concatenate(arrays)

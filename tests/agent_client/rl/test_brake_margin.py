@@ -22,7 +22,7 @@ from agent_client.rl.losses.brake_margin import (
     needed_deceleration,
     stopping_emergencies,
 )
-from agent_client.rl.replay import ReplayMemory
+from agent_client.rl.replay import ReplayMemory, _assemble
 from agent_client.stacker import FrameStacker
 from protocol.constants import A_MIN, FORCE_LEVELS, MIN_GAP
 from tests.agent_client.rl.losses.loss_batches import forward, tiny_batch, tiny_net
@@ -174,6 +174,10 @@ def test_the_lead_stops_are_kept_sampled_saved_and_loaded_with_the_transitions(t
         plain.add(3, 0.0, False, False, obs, 49.0 - i)
     assert "lead_stops" not in plain._arrays()
     assert plain.sample(16, np.random.default_rng(1), 1, 0.99).lead_stops is None  # a memory without them samples none
+    rng = np.random.default_rng(2)
+    mixed = [(m, m._plan(8, rng, 1, 0.99)) for m in (memory, plain)]
+    with pytest.raises(ValueError, match="all keep the lead stops or none"):  # half a column would misalign the batch
+        _assemble(mixed, memory._buffer(16))
 
 
 def test_config_checks_the_emergency_kind():
