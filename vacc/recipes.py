@@ -10,7 +10,9 @@ checks (gates) its model must pass. Its layout::
     [ablation]               note: which stages are candidates to drop (optional)
     [[stage]]                name, kind, note, known_weights and cpu_path (optional), then the kind's keys:
       train                  every Config field by name (``vacc train``'s options, snake_case;
-                             None written "none"), and output = "best" | "latest" | "eval:STEP"
+                             None written "none"), and output = "best" | "latest" | "eval:STEP" |
+                             "swa:STEP" (the even mean of the evaluations kept from STEP on:
+                             stochastic weight averaging over the run's tail)
       average                inputs = ["stage:a", "stage:b"], weights = [1.0, 1.0]
       decide                 input, decision, temperature, brake_share, brake_confirm,
                              full_brake_confirm, deadband, smoothing
@@ -344,11 +346,13 @@ def _check_train(path: Path, where: str, stage: Stage) -> None:
     except (TypeError, ValueError) as exc:
         raise _bad(path, where, str(exc)) from None
     out = stage.options["output"]
-    step = out.removeprefix("eval:") if isinstance(out, str) else ""
-    if out not in ("best", "latest") and not (out.startswith("eval:") and step.isdigit()):
-        raise _bad(path, f"{where}.output", f"{out!r} is not best, latest or eval:STEP")
+    form, _, step = out.partition(":") if isinstance(out, str) else ("", "", "")
+    if out not in ("best", "latest") and not (form in ("eval", "swa") and step.isdigit()):
+        raise _bad(path, f"{where}.output", f"{out!r} is not best, latest, eval:STEP or swa:STEP")
     if step.isdigit() and not cfg.keep_evals:
-        raise _bad(path, f"{where}.output", f"{out!r} needs keep_evals = true (the evaluation's policy is kept as evals/STEP.pt)")
+        raise _bad(path, f"{where}.output", f"{out!r} needs keep_evals = true (each evaluation's policy is kept as evals/STEP.pt)")
+    if form == "swa" and not (0 < cfg.eval_every and int(step) < cfg.total_steps):
+        raise _bad(path, f"{where}.output", f"{out!r} needs eval_every > 0 and STEP below total_steps ({cfg.total_steps}): it averages the evaluations kept from STEP on")
 
 
 def _check_surgery(path: Path, where: str, stage: Stage) -> None:

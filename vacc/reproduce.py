@@ -150,6 +150,8 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
     output = stage.options["output"]
     if output.startswith("eval:") and not opts["smoke"]:
         return _kept_evaluation(stage, run, int(output.removeprefix("eval:")))
+    if output.startswith("swa:") and not opts["smoke"]:
+        return _tail_mean(stage, run, int(output.removeprefix("swa:")))
     if output == "best" and (run / "best.pt").is_file():
         return run / "best.pt"
     if output == "best" and not opts["smoke"]:
@@ -173,6 +175,24 @@ def _kept_evaluation(stage: Stage, run: Path, step: int) -> Path:
     nearest = kept[0][2]
     click.echo(f"vacc reproduce: stage {stage.name}: no evaluation at step {step}; took the nearest, at step {nearest.stem} (this run is not the recorded one bit for bit)", err=True)
     return nearest
+
+
+def _tail_mean(stage: Stage, run: Path, step: int) -> Path:
+    """``swa:STEP``: the even mean of the evaluations kept from ``STEP`` on, in step order
+    (stochastic weight averaging over the run's tail), written to ``run/swa.pt``.
+
+    Raises:
+        click.ClickException: the run kept no evaluation from ``STEP`` on.
+    """
+    kept = sorted((int(p.stem), p) for p in (run / "evals").glob("*.pt") if p.stem.isdigit() and int(p.stem) >= step)
+    if not kept:
+        raise click.ClickException(f"stage {stage.name}: output swa:{step}, but {run / 'evals'} holds no kept evaluation from step {step} on (keep_evals must be true)")
+    if len(kept) == 1:
+        return kept[0][1]
+    (run / "swa.pt").unlink(missing_ok=True)  # a mean written before a kill: made again, the same
+    average_policies([str(p) for _, p in kept], run / "swa.pt", [1.0] * len(kept))
+    click.echo(f"vacc reproduce: stage {stage.name}: the mean of {len(kept)} kept evaluations, steps {kept[0][0]}-{kept[-1][0]}", err=True)
+    return run / "swa.pt"
 
 
 def _surgery_stage(stage: Stage, inputs: dict[str, str], dst: Path) -> None:

@@ -181,6 +181,18 @@ def test_bad_values_are_refused_naming_the_key():
     c["stage"][0]["output"] = "eval:100"
     _refuse(c, "stage 'gap-scratch'.output") if not c["stage"][0]["keep_evals"] else None
     c = _content()
+    c["stage"][0]["output"] = "swa:many"
+    _refuse(c, "stage 'gap-scratch'.output", "is not best, latest, eval:STEP or swa:STEP")
+    c = _content()
+    c["stage"][0].update(output="swa:100", keep_evals=False)
+    _refuse(c, "stage 'gap-scratch'.output", "needs keep_evals = true")
+    c = _content()
+    c["stage"][0].update(output=f"swa:{c['stage'][0]['total_steps']}", keep_evals=True, eval_every=1000)
+    _refuse(c, "stage 'gap-scratch'.output", "STEP below total_steps")
+    c = _content()
+    c["stage"][0].update(output="swa:100", keep_evals=True, eval_every=1000)
+    parse_recipe(c, EV_FORCE_CHAIN)  # the tail's mean, well formed
+    c = _content()
     c["stage"][1]["name"] = "gap-scratch"
     _refuse(c, "another stage has this name")
     c = _content()

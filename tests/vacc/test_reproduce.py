@@ -160,6 +160,26 @@ def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, 
     assert _kept_evaluation(stage, tmp_path, 25000).name == "25000.pt" and capsys.readouterr().err.count("took the nearest") == 2
 
 
+def test_a_swa_output_is_the_even_mean_of_the_evaluations_kept_from_its_step_on(tmp_path, capsys):
+    import click
+
+    from agent_client.rl.checkpoint import average_policies
+    from vacc.recipes import load_recipe
+    from vacc.reproduce import _tail_mean, weights_sha256
+
+    stage = load_recipe("ice-force").stage("long")
+    (tmp_path / "evals").mkdir()
+    for step, model in ((90, "ice-gap"), (120, "ice-force"), (250, "ice-gap")):
+        shutil.copy(ROOT / "models" / f"{model}.pt", tmp_path / "evals" / f"{step}.pt")
+    with pytest.raises(click.ClickException, match="stage long: output swa:300, but .* holds no kept evaluation from step 300 on"):
+        _tail_mean(stage, tmp_path, 300)
+    assert _tail_mean(stage, tmp_path, 200).name == "250.pt"  # one kept: itself
+    average_policies([tmp_path / "evals" / "120.pt", tmp_path / "evals" / "250.pt"], tmp_path / "want.pt")
+    for _ in range(2):  # a mean left by a killed stage is made again
+        assert weights_sha256(_tail_mean(stage, tmp_path, 100)) == weights_sha256(tmp_path / "want.pt")
+    assert "the mean of 2 kept evaluations, steps 120-250" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_a_stage_on_other_kernels_goes_on_in_a_fresh_process(tmp_path):
     """One chain may mix kernels (ice-gap's from-scratch stage was made on AVX2, its safety
