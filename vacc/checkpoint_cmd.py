@@ -68,7 +68,8 @@ def checkpoint_summary(path: str | Path) -> dict[str, Any]:
 
     Returns:
         path, size [bytes], sha256 (of the file, as ``sha256sum``), digest (of its contents),
-        kind, version, step, scenario, action, reward, decision, widths, lineage (None:
+        kind, version, step, averaged_steps (each source's, for a mean of policies),
+        scenario, action, reward, decision, widths, lineage (None:
         written before checkpoints recorded it), recorded_sources (paths an older file's
         ``extra`` names) and config (every setting).
 
@@ -84,8 +85,20 @@ def checkpoint_summary(path: str | Path) -> dict[str, Any]:
         "kind": ckpt.get("kind"), "version": ckpt["version"], "step": None if step is None else int(step),
         "scenario": cfg.scenario, "action": cfg.action, "reward": cfg.reward, "decision": decision_text(cfg),
         "widths": {"conv_channels": list(cfg.conv_channels), "hidden": cfg.hidden},
+        "averaged_steps": [s.get("step") for s in extra.get("average_of", [])],
         "lineage": ckpt.get("lineage"), "recorded_sources": _extra_paths(extra), "config": config_dict(cfg),
     }  # fmt: skip
+
+
+def _step_text(summary: dict[str, Any]) -> str:
+    """The step, and for a mean of policies that its step is its first source's, not all it learned."""
+    if summary["step"] is None:
+        return "not recorded"
+    steps = [s for s in summary["averaged_steps"] if s is not None]
+    if len(summary["averaged_steps"]) < 2:
+        return str(summary["step"])
+    span = f", steps {min(steps)}-{max(steps)}" if steps else ""
+    return f"{summary['step']} (its first source's: a mean of {len(summary['averaged_steps'])} policies{span})"
 
 
 def _lineage_lines(summary: dict[str, Any]) -> list[str]:
@@ -113,7 +126,7 @@ def _info_lines(summary: dict[str, Any]) -> list[str]:
         f"  sha256   {summary['sha256']}",
         f"  size     {summary['size']:,} bytes",
         f"  kind     {summary['kind']} (version {summary['version']}, contents digest {summary['digest'] or 'none'})",
-        f"  step     {summary['step'] if summary['step'] is not None else 'not recorded'}",
+        f"  step     {_step_text(summary)}",
         f"  scenario {summary['scenario']}, action {summary['action']}, reward {summary['reward']}",
         f"  network  conv {'/'.join(map(str, widths['conv_channels']))}, hidden {widths['hidden']}",
         f"  {summary['decision']}",

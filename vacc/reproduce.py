@@ -133,6 +133,8 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
         cfg = dataclasses.replace(cfg, servers=opts["servers"])
     run = sdir / "run"
     resume = (run / "latest.pt").is_file()
+    if resume:
+        cfg = _as_begun(cfg, run)
     if not resume:
         for old in run_files(run):  # stopped before its first checkpoint: start it afresh
             old.unlink()
@@ -157,6 +159,23 @@ def _train_stage(recipe: Recipe, stage: Stage, sdir: Path, inputs: dict[str, str
     if output == "best" and not opts["smoke"]:
         raise click.ClickException(f"stage {stage.name}: no evaluation passed, so {run / 'best.pt'} was never written")
     return run / "latest.pt"  # exported as a policy by the caller (--smoke: for any output)
+
+
+def _as_begun(cfg: Config, run: Path) -> Config:
+    """``cfg`` with the ``init_from`` its run began with, where only the folder around it moved
+    (the same ``<stage>/<stage>.pt``): a run folder moved elsewhere resumes. The start is read at
+    a run's beginning only, and its weights are the stage key's, so nothing the run makes
+    changes. Not where a resume reads it again (an actor-critic's student)."""
+    if cfg.bc_steps > 0 or cfg.bc_weight > 0.0:
+        return cfg
+    try:
+        then = json.loads((run / "config.json").read_text()).get("init_from")
+    except (OSError, ValueError):
+        return cfg  # the trainer's own check says what is wrong
+    now = cfg.init_from
+    if isinstance(now, str) and isinstance(then, str) and now != then and Path(now).parts[-2:] == Path(then).parts[-2:]:
+        return dataclasses.replace(cfg, init_from=then)
+    return cfg
 
 
 def _kept_evaluation(stage: Stage, run: Path, step: int) -> Path:
@@ -326,16 +345,8 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
         wall_s: float | None = logged_wall_s(sdir / "run") if stage.kind == "train" else time.perf_counter() - t0
     except (ClientError, ValueError):  # a scalars file it cannot read: the time unknown, the stage done
         wall_s = None
-    # The checkpoint layout's lineage (vacc checkpoint info reads it): parents by the SHA-256 of
-    # their weights (their files also record paths) and by their paths relative to the output
-    # folder, so that a run records the same lineage in any folder.
-    parents = [{"sha256": done[name]["weights_sha256"], "digest_of": "weights", "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
-    if stage.kind == "shipped":  # a file of the repository, which its own recipe rebuilds
-        parents.append({"sha256": stage.options["weights_sha256"], "digest_of": "weights", "path": f"models/{stage.options['model']}.pt", "role": "shipped"})
-    made = {"name": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
-    lineage = {"stage": stage.kind, "parents": parents, "recipe": made}
-    stamp_lineage(dst, lineage)
-    record = {**made, "kind": stage.kind, "parents": parents, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
+    made = _stamp(recipe, stage, dst, done, opts)
+    record = {**made, "kind": stage.kind, "output": dst.name, "sha256": file_sha256(dst), "weights_sha256": weights_sha256(dst),
               "wall_s": None if wall_s is None else round(wall_s, 1), "host": describe(), "stage_key": key}  # fmt: skip
     if stage.kind == "train":
         record["cpu_path"] = pinned_path()  # the path asked (host.kernels: torch's own name for it)
@@ -343,6 +354,30 @@ def run_stage(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str,
     if stage.kind == "train" and not opts.get("keep_replay"):  # only a resume reads it: GBs a stage
         for buffer in (sdir / "run").glob("replay*.npz"):
             buffer.unlink()
+    return record
+
+
+def _stamp(recipe: Recipe, stage: Stage, dst: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any]) -> dict[str, Any]:
+    """Stamp ``dst`` with this run's lineage; returns it as a record's fields (recipe, stage, parents).
+
+    The checkpoint layout's lineage (vacc checkpoint info reads it): parents by the SHA-256 of
+    their weights (their files also record paths) and by their paths relative to the output
+    folder, so that a run records the same lineage in any folder."""
+    parents = [{"sha256": done[name]["weights_sha256"], "digest_of": "weights", "path": f"{name}/{name}.pt", "role": name} for name in stage_refs(stage)]
+    if stage.kind == "shipped":  # a file of the repository, which its own recipe rebuilds
+        parents.append({"sha256": stage.options["weights_sha256"], "digest_of": "weights", "path": f"models/{stage.options['model']}.pt", "role": "shipped"})
+    made = {"name": recipe.name, "digest": recipe.digest, "stage": stage.name, "seed": opts["seed"], "smoke": opts["smoke"]}
+    stamp_lineage(dst, {"stage": stage.kind, "parents": parents, "recipe": made})
+    return {**made, "parents": parents}
+
+
+def _restamp(recipe: Recipe, stage: Stage, out: Path, done: dict[str, dict[str, Any]], opts: dict[str, Any], record: dict[str, Any]) -> dict[str, Any]:
+    """A stage copied by --reuse, stamped as this run would have made it: its lineage names this
+    recipe, stage and replicate (another recipe's run or another name for the same stage may have
+    made it); the weights are untouched. Returns its record, rewritten to ``done.json``."""
+    dst = out / stage.name / f"{stage.name}.pt"
+    record = {**record, **_stamp(recipe, stage, dst, done, opts), "sha256": file_sha256(dst)}
+    (out / stage.name / "done.json").write_text(json.dumps(record, indent=1) + "\n")
     return record
 
 
@@ -413,6 +448,8 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
         record = _done_record(out, stage, key)
         if record is None and reuse is not None:
             record = _reuse(stage, key, out, reuse, bool(stage.known_weights) and _compared(recipe, stage, opts))
+            if record is not None:
+                record = _restamp(recipe, stage, out, done, opts, record)
         if stage.kind == "train" and record is not None and record.get("cpu_path", path) != path:  # said even when quiet
             click.echo(f"vacc reproduce: stage {stage.name} was made on {record['cpu_path']} kernels, not {path}: kept (remove {out / stage.name} to make it again)", err=True)
         if stage.kind == "train" and record is None:

@@ -520,5 +520,8 @@ def export_policy(src: str | Path, dst: str | Path) -> int:
     ckpt = read_checkpoint(src)
     step = int(ckpt.get("state", {}).get("global_step", ckpt.get("extra", {}).get("step", 0)))
     q, cfg = load_policy(src)
-    save_policy(q, cfg, dst, {"step": step, "from": str(src)}, make_lineage("export", [src]))
+    extra = {"step": step, "from": str(src)}
+    if "average_of" in ckpt.get("extra", {}):  # a mean (a recipe's swa output) stays known as one
+        extra["average_of"] = ckpt["extra"]["average_of"]
+    save_policy(q, cfg, dst, extra, make_lineage("export", [src]))
     return step

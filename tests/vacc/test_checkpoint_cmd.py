@@ -87,6 +87,13 @@ def test_export_decide_narrow_and_average_record_their_parents_digests(tmp_path)
         shown = _invoke("info", str(out)).output
         assert f"stage    {stage}" in shown and all(f"parent   {_sha256(p)} (was {p})" in shown for p in parents)
     assert [r["share"] for r in read_checkpoint(tmp_path / "a.pt")["extra"]["average_of"]] == [0.75, 0.25]
+    # a mean's step is its first source's: said so, with every source's step
+    steps = [read_checkpoint(p)["extra"]["step"] for p in (gap, force)]
+    assert f"step     {steps[0]} (its first source's: a mean of 2 policies, steps {min(steps)}-{max(steps)})" in _invoke("info", str(tmp_path / "a.pt")).output
+    assert f"step     {read_checkpoint(eco)['extra']['step']}\n" in _invoke("info", str(eco)).output
+    # exported (as a recipe's swa output is), a mean stays known as one
+    assert _invoke("export", str(tmp_path / "a.pt"), str(tmp_path / "ae.pt")).exit_code == 0
+    assert "a mean of 2 policies" in _invoke("info", str(tmp_path / "ae.pt")).output
 
 
 @pytest.mark.slow  # four processes, each importing torch

@@ -18,8 +18,9 @@ import pytest
 import torch
 from proctools import reap_job
 
+from agent_client.rl.checkpoint import read_checkpoint
 from vacc.recipes import RECIPES_DIR
-from vacc.reproduce import SEED_STRIDE, duration, shifted_seed
+from vacc.reproduce import SEED_STRIDE, duration, file_sha256, shifted_seed
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = sorted(p.stem for p in RECIPES_DIR.glob("*.toml"))
@@ -251,7 +252,8 @@ def test_smoke_reproduce_runs_every_stage_and_the_gates(name, tmp_path):
 
 @pytest.mark.slow
 def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
-    """ev-force's smoke run, checked as every recipe's is, then the same killed half-way and resumed."""
+    """ev-force's smoke run, checked as every recipe's is, then the same killed half-way, its
+    folder moved, and resumed there."""
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     proc = _reproduce(SHARED, whole)
     out = _finish(proc)
@@ -266,6 +268,7 @@ def test_a_reproduce_killed_mid_stage_resumes_to_the_same_model(tmp_path):
     proc.wait()
     assert not (killed / "ev-gap" / "done.json").exists()
     assert list((killed / "ev-gap" / "run").glob("replay*.npz"))  # kept while the stage can resume
+    killed = killed.rename(tmp_path / "moved")  # the stage began from killed/gap-scratch/gap-scratch.pt
     proc = _reproduce(SHARED, killed)
     out = _finish(proc)
     assert proc.returncode == 0, out[-2000:]
@@ -292,6 +295,10 @@ def test_a_tail_replicate_reuses_the_stages_before_it_and_a_stage_made_otherwise
     for name in ("gap-scratch", "ev-gap"):
         assert f"stage {name} reused from {a / name}" in out and f"{name} {duration(json.loads((a / 'timing.json').read_text())['stages'][name]['wall_s'])} (reused)" in out
         assert done[b][name]["weights_sha256"] == done[a][name]["weights_sha256"] and not (b / name / "run").exists()
+        # stamped as run b would have made it (its replicate), the record naming the file as it now is
+        lineage = read_checkpoint(b / name / f"{name}.pt")["lineage"]
+        assert lineage["recipe"]["seed"] == 1 and read_checkpoint(a / name / f"{name}.pt")["lineage"]["recipe"]["seed"] == 0
+        assert done[b][name]["seed"] == 1 and done[b][name]["sha256"] == file_sha256(b / name / f"{name}.pt")
     for name in ("ev-force", "mix"):
         assert f"stage {name} reused" not in out and done[b][name]["weights_sha256"] != done[a][name]["weights_sha256"]
         assert json.loads((b / name / "run" / "config.json").read_text())["seed"] == json.loads((a / name / "run" / "config.json").read_text())["seed"] + SEED_STRIDE
