@@ -58,7 +58,7 @@ def test_a_script_says_at_its_top_what_it_answers_and_how_to_run_it(script):
 
 
 def test_every_script_has_a_run_test_here():
-    tested = {"calibrate_cmem.py", "energy_frontier.py", "fit_ev_model.py", "openacc_platoons.py", "reward_ablation.py"}
+    tested = {"calibrate_cmem.py", "energy_frontier.py", "fit_ev_model.py", "model_curve.py", "openacc_platoons.py", "reward_ablation.py"}
     assert {p.name for p in SCRIPTS} == tested
 
 
@@ -156,3 +156,20 @@ def test_openacc_platoons_on_one_file(tmp_path):
     assert [f[1:3] for f in fits] == [["1", "MAZDA_3"], ["2", "TOYOTA_RAV4"], ["3", "AUDI_E_TRON"]]
     assert all(float(f[6]) < 2.0 for f in fits), fits  # each of the three fitted within 2 m RMSE
     assert (tmp_path / "long_setting_dynamic_part19_time_space.png").exists()
+
+
+def test_model_curve_bins_a_runs_episodes_by_reward_per_step(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    rows = [(400, "charts/episodic_return", 100.0), (400, "charts/episodic_length", 400), (400, "losses/td_loss", 9.0),
+            (4_800, "charts/episodic_return", 300.0), (4_800, "charts/episodic_length", 600), (5_200, "charts/episodic_return", -50.0),
+            (5_200, "charts/episodic_length", 100)]  # fmt: skip
+    (run_dir / "scalars.csv").write_text("step,name,value,wall_s\n" + "".join(f"{s},{n},{v},1.0\n" for s, n, v in rows))
+    out = tmp_path / "x.curve.csv"
+    result = run("model_curve.py", str(run_dir), "--offset", "1000", "--note", "a test run", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("#") and lines[0].endswith("; a test run") and lines[1] == "step,avg_reward"
+    assert lines[2:] == ["1000,0.4000", "6000,-0.5000"]  # (100 + 300) / 1000 steps; -50 / 100
+    result = run("model_curve.py", str(tmp_path), "--out", str(tmp_path / "y.csv"))
+    assert result.returncode == 1 and "scalars.csv: no such file" in result.stderr and not (tmp_path / "y.csv").exists()
