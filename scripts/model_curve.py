@@ -2,7 +2,7 @@
 from a training run's ``scalars.csv``: the average reward per step of the episodes that ended in
 each 5,000-step bin, its steps counted on from those of the chain before the run (``--offset``).
 
-    python scripts/model_curve.py RUN_DIR --offset 510000 --note "..." --out models/ev-gap.curve.csv
+    python scripts/model_curve.py RUN_DIR --offset 455323 --note "..." --out models/ev-gap.curve.csv
 """
 
 from __future__ import annotations
