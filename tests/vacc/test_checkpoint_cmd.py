@@ -103,7 +103,7 @@ def test_the_surgery_end_to_end(tmp_path):
         "average": (["average", "models/ev-gap.pt", "models/ev-force.pt", "--out", str(tmp_path / "a.pt")], "the mean of 2 policies"),
         "decide": (["decide", "models/ev-eco.pt", str(tmp_path / "d.pt"), "--decision", "mean", "--temperature", "2"], "decision mean, temperature 2"),
         "narrow": (["narrow", "models/ev-eco.pt", str(tmp_path / "n.pt"), "--conv-channels", "4,8,8", "--hidden", "32"], "conv 4/8/8, hidden 32"),
-        "export": (["export", "models/ev-eco.pt", str(tmp_path / "x.pt")], "the policy at step 40000"),
+        "export": (["export", "models/ev-eco.pt", str(tmp_path / "x.pt")], "the policy at step 100449"),
     }
     for name, (args, said) in runs.items():
         done = _vacc("checkpoint", *args)

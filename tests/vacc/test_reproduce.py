@@ -123,12 +123,13 @@ def test_a_record_of_another_key_is_reused_only_where_it_made_the_known_weights(
 
 
 def test_a_stage_another_recipe_names_otherwise_is_reused_by_its_key(tmp_path, capsys):
-    """ev-eco's ``base`` is ev-force's ``ev-gap`` (the same options, seed and parents): a
-    keyed record under another name is found, copied under this stage's name, and says where from."""
+    """A stage that another recipe names otherwise (here ev-eco's ``dagger``, kept elsewhere
+    as ``ev-gap``, with the same key): the keyed record under the other name is found, copied
+    under this stage's name, and says where from."""
     from vacc.recipes import load_recipe
     from vacc.reproduce import _reuse, file_sha256
 
-    stage = load_recipe("ev-eco").stage("base")
+    stage = load_recipe("ev-eco").stage("dagger")
     src = tmp_path / "src" / "ev-gap"
     src.mkdir(parents=True)
     (src / "ev-gap.pt").write_bytes(b"weights")
@@ -136,10 +137,10 @@ def test_a_stage_another_recipe_names_otherwise_is_reused_by_its_key(tmp_path, c
     (src / "done.json").write_text(json.dumps({"output": "ev-gap.pt", "sha256": file_sha256(src / "ev-gap.pt"), "stage_key": "k" * 64}))
     assert _reuse(stage, "j" * 64, tmp_path / "a", tmp_path / "src", known=False) is None  # another key
     got = _reuse(stage, "k" * 64, tmp_path / "b", tmp_path / "src", known=False)
-    assert got is not None and got["output"] == "base.pt" and got["reused_from"] == str(src)
-    assert (tmp_path / "b" / "base" / "base.pt").read_bytes() == b"weights"
-    assert json.loads((tmp_path / "b" / "base" / "done.json").read_text())["output"] == "base.pt"
-    assert f"stage base reused from {src}" in capsys.readouterr().err
+    assert got is not None and got["output"] == "dagger.pt" and got["reused_from"] == str(src)
+    assert (tmp_path / "b" / "dagger" / "dagger.pt").read_bytes() == b"weights"
+    assert json.loads((tmp_path / "b" / "dagger" / "done.json").read_text())["output"] == "dagger.pt"
+    assert f"stage dagger reused from {src}" in capsys.readouterr().err
 
 
 def test_an_eval_output_takes_the_nearest_kept_evaluation_and_says_so(tmp_path, capsys):
