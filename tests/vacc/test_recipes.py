@@ -50,8 +50,6 @@ def test_the_last_train_stages_are_the_shipped_checkpoints_settings():
         path = models / f"{name}.pt"
         shipped = config_dict(checkpoint_config(read_checkpoint(path), path))
         cfg = config_dict(stage_config(load_recipe(name).stage(stage), {parent: shipped["init_from"]}))
-        if name == "ev-eco":  # it trained with the brake share off; the stage brake-share set 0.1 on the mean's weights
-            cfg["decision_brake_share"] = load_recipe(name).stage("brake-share").options["brake_share"]
         assert cfg == shipped, name
 
 
