@@ -41,8 +41,10 @@ import click
 
 from agent_client.errors import ClientError
 from agent_client.rl.checkpoint import (
+    POLICY_FIELDS,
     atomic_save,
     average_policies,
+    checkpoint_config,
     digest,
     export_policy,
     file_sha256,
@@ -50,7 +52,7 @@ from agent_client.rl.checkpoint import (
     read_checkpoint,
     with_decision,
 )
-from agent_client.rl.config import Config, single_stream_only
+from agent_client.rl.config import Config, config_dict, single_stream_only
 from agent_client.rl.scalars import logged_wall_s
 from agent_client.rl.stop import STOP, stop_exit_code, stop_handlers
 from vacc.host import CPU_PATHS, PINNED, describe, label, pinned_path, use_cpu_path
@@ -82,6 +84,15 @@ def weights_sha256(path: Path) -> str:
     its ``model``): what a lineage names a parent by, the same wherever the run folder is
     (the file itself records paths)."""
     return digest({"model": read_checkpoint(path)["model"]})
+
+
+def policy_sha256(path: Path) -> str:
+    """SHA-256 of a checkpoint's policy: its weights and the settings that decide how it sees
+    and acts (:data:`~agent_client.rl.checkpoint.POLICY_FIELDS`, the decision rule among them),
+    so that the same weights under another rule count as another model."""
+    ckpt = read_checkpoint(path)
+    cfg = config_dict(checkpoint_config(ckpt, path))
+    return digest({"model": ckpt["model"], "policy": {k: cfg[k] for k in POLICY_FIELDS}})
 
 
 def shifted_seed(seed: int, recipe: Recipe, replicate: int) -> int:
@@ -481,7 +492,7 @@ def reproduce(recipe: Recipe, out: Path, *, seed: int | None = None, servers: in
 
 def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts: dict[str, Any]) -> dict[str, Any]:
     """Whether a run made the known weights again: each stage with ``known_weights``, and the
-    model against the shipped ``<models>/<name>.pt`` (where there is one). Only the stages run
+    model's policy (:func:`policy_sha256`) against the shipped ``<models>/<name>.pt`` (where there is one). Only the stages run
     at the recipe's own seed (all but a replicate's, or a replicate's before its
     ``--reseed-from``), and not with --smoke; where none is, ``{"compared": False, "why": ...}``."""
     from vacc.paths import models_dir
@@ -490,7 +501,7 @@ def identity(recipe: Recipe, done: dict[str, dict[str, Any]], final: Path, opts:
               for s in recipe.stages if s.known_weights and _compared(recipe, s, opts)]  # fmt: skip
     shipped = models_dir() / f"{recipe.name}.pt"
     if shipped.is_file() and _compared(recipe, recipe.stages[-1], opts):
-        checks.append({"what": f"{final.name} against {shipped}", "known": weights_sha256(shipped), "made": weights_sha256(final)})
+        checks.append({"what": f"{final.name} against {shipped}", "known": policy_sha256(shipped), "made": policy_sha256(final)})
     why = _not_compared(recipe, opts)
     if why and not checks:
         return {"compared": False, "why": why, "checks": []}

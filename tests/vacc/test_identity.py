@@ -1,5 +1,6 @@
-"""`vacc reproduce`'s bit-for-bit check: stages with known weights, and the model against the
-shipped file, compared by the SHA-256 of their weights, at the recipe's own seed only."""
+"""`vacc reproduce`'s bit-for-bit check: stages with known weights, compared by the SHA-256 of
+their weights, and the model against the shipped file by its policy's (weights and decision
+rule), at the recipe's own seed only."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from pathlib import Path
 
 import torch
 
-from agent_client.rl.checkpoint import atomic_save
+from agent_client.rl.checkpoint import atomic_save, with_decision
 from vacc.recipes import RECIPES_DIR, parse_recipe
-from vacc.reproduce import identity, identity_line, weights_sha256
+from vacc.reproduce import identity, identity_line, policy_sha256, weights_sha256
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 
@@ -53,6 +54,24 @@ def test_identical_and_differing_weights_are_told_apart(tmp_path, monkeypatch):
     ident = identity(recipe, {first: {"weights_sha256": other}}, tmp_path / "other.pt", opts)
     assert [c["identical"] for c in ident["checks"]] == [False, False]
     assert identity_line(ident) == f"bit for bit: stage {first} DIFFERS, other.pt against {shipped_dir / 'ev-force.pt'} DIFFERS"
+
+
+def test_the_same_weights_under_another_decision_rule_are_another_model(tmp_path, monkeypatch):
+    shipped_dir = tmp_path / "models"
+    shipped_dir.mkdir()
+    shutil.copyfile(MODELS / "ev-eco.pt", shipped_dir / "ev-eco.pt")
+    monkeypatch.setenv("VACC_MODELS", str(shipped_dir))
+    ruled = tmp_path / "ev-eco.pt"
+    with_decision(MODELS / "ev-eco.pt", ruled, "mean", brake_share=0.1)
+    assert weights_sha256(ruled) == weights_sha256(MODELS / "ev-eco.pt")
+    assert policy_sha256(ruled) != policy_sha256(MODELS / "ev-eco.pt")
+    content = tomllib.loads((RECIPES_DIR / "ev-eco.toml").read_text())
+    recipe = parse_recipe(content, Path("recipes/ev-eco.toml"))
+    opts = {"seed": recipe.seed, "smoke": False}
+    done = {s.name: {"weights_sha256": weights_sha256(MODELS / "ev-eco.pt")} for s in recipe.stages}
+    ident = identity(recipe, done, ruled, opts)
+    assert [c["identical"] for c in ident["checks"]] == [True, False]  # the stage's weights, then the policy
+    assert identity(recipe, done, shipped_dir / "ev-eco.pt", opts)["checks"][-1]["identical"]
 
 
 def test_a_replicate_or_a_smoke_run_is_not_compared(tmp_path, monkeypatch):
