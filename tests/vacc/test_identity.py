@@ -10,7 +10,12 @@ from pathlib import Path
 
 import torch
 
-from agent_client.rl.checkpoint import atomic_save, with_decision
+from agent_client.rl.checkpoint import (
+    atomic_save,
+    checkpoint_config,
+    read_checkpoint,
+    with_decision,
+)
 from vacc.recipes import RECIPES_DIR, parse_recipe
 from vacc.reproduce import identity, identity_line, policy_sha256, weights_sha256
 
@@ -62,7 +67,8 @@ def test_the_same_weights_under_another_decision_rule_are_another_model(tmp_path
     shutil.copyfile(MODELS / "ev-eco.pt", shipped_dir / "ev-eco.pt")
     monkeypatch.setenv("VACC_MODELS", str(shipped_dir))
     ruled = tmp_path / "ev-eco.pt"
-    with_decision(MODELS / "ev-eco.pt", ruled, "mean", brake_share=0.1)
+    shipped = checkpoint_config(read_checkpoint(MODELS / "ev-eco.pt"), MODELS / "ev-eco.pt")
+    with_decision(MODELS / "ev-eco.pt", ruled, "mean", temperature=shipped.decision_temperature + 1.0)
     assert weights_sha256(ruled) == weights_sha256(MODELS / "ev-eco.pt")
     assert policy_sha256(ruled) != policy_sha256(MODELS / "ev-eco.pt")
     content = tomllib.loads((RECIPES_DIR / "ev-eco.toml").read_text())
