@@ -123,9 +123,9 @@ def test_a_record_of_another_key_is_reused_only_where_it_made_the_known_weights(
 
 
 def test_a_stage_another_recipe_names_otherwise_is_reused_by_its_key(tmp_path, capsys):
-    """A stage that another recipe names otherwise (here ev-eco's ``dagger``, kept elsewhere
-    as ``ev-gap``, with the same key): the keyed record under the other name is found, copied
-    under this stage's name, and says where from."""
+    """A stage whose keyed record sits under another stage name (here ev-eco's ``dagger``, its
+    record written as ``ev-gap`` with the same key): the record is found, copied under this
+    stage's name, and says where from."""
     from vacc.recipes import load_recipe
     from vacc.reproduce import _reuse, file_sha256
 
